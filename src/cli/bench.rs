@@ -1,0 +1,125 @@
+//! `harmap bench`: the figures the issues ask for, on this machine.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use harmap::grid::MemBudget;
+use harmap::input::InputOptions;
+use harmap::pipeline::{voxelize_new_run, Source};
+use harmap::voxelize::VoxelizeOptions;
+
+use super::progress::Bars;
+use super::{Global, UsageError};
+
+/// Measure a stage: time, voxels per second and peak resident memory.
+///
+/// `harmap bench voxelize` voxelizes a mesh (default: the armadillo of the project's
+/// test data when it is found, else the built-in starfish) at each --n and prints one
+/// line per size. Peak memory is the process's high-water mark (VmHWM), so run one size
+/// per process for a clean figure.
+///
+/// Example:
+///   harmap bench voxelize --n 256 --n 512 --input armadillo.obj.gz
+#[derive(clap::Args, Debug)]
+#[command(verbatim_doc_comment)]
+pub struct Args {
+    /// The stage to measure.
+    #[arg(value_enum)]
+    pub stage: Stage,
+    /// Grid resolution(s) to measure.
+    #[arg(long, value_name = "N", default_values_t = [256u64, 512])]
+    pub n: Vec<u64>,
+    /// Memory budget.
+    #[arg(long, value_name = "SIZE", default_value = "1GiB")]
+    pub mem: MemBudget,
+    /// Mesh to voxelize.
+    #[arg(long)]
+    pub input: Option<PathBuf>,
+    /// Where to put the temporary runs (default: the system temp directory).
+    #[arg(long)]
+    pub dir: Option<PathBuf>,
+}
+
+/// Stages `bench` can measure.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum Stage {
+    /// Mesh -> labels.
+    Voxelize,
+}
+
+/// Peak resident set of this process so far, bytes (Linux; 0 elsewhere).
+pub fn peak_rss() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse::<u64>().ok())
+        })
+        .map_or(0, |kib| kib * 1024)
+}
+
+/// Run `harmap bench`.
+pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
+    let Stage::Voxelize = a.stage;
+    let input = a.input.clone().or_else(|| {
+        [
+            "../shared/data/meshes/armadillo.obj.gz",
+            "../../shared/data/meshes/armadillo.obj.gz",
+        ]
+        .iter()
+        .map(PathBuf::from)
+        .find(|p| p.exists())
+    });
+    if let Some(p) = &input {
+        if !p.exists() {
+            return Err(UsageError(format!("{}: no such file", p.display())).into());
+        }
+    }
+    let dir = tempfile_dir(a.dir.as_ref())?;
+    let iopts = InputOptions::default();
+    let source = input
+        .as_ref()
+        .map_or(Source::Starfish, |p| Source::File(p, &iopts));
+    let name = input
+        .as_ref()
+        .map_or("built-in starfish".to_owned(), |p| p.display().to_string());
+    println!(
+        "harmap bench voxelize: {name}, --mem {}, {} threads",
+        a.mem,
+        rayon::current_num_threads()
+    );
+    println!(
+        "{:>6} {:>16} {:>10} {:>14} {:>12}",
+        "N", "grid (x*y*z)", "seconds", "voxels/s", "peak RSS"
+    );
+    let bars = Bars::new(g);
+    for &n in &a.n {
+        let out = dir.join(format!("bench-{n}.harmap"));
+        let opts = VoxelizeOptions {
+            resolution: Some(n),
+            mem: a.mem,
+            ..VoxelizeOptions::default()
+        };
+        let t = Instant::now();
+        let (_, r) = voxelize_new_run(&source, &opts, &out, true, &bars)?;
+        let secs = t.elapsed().as_secs_f64();
+        let s = r.grid.shape;
+        println!(
+            "{n:>6} {:>16} {secs:>10.3} {:>14.3e} {:>12}",
+            format!("{}x{}x{}", s[2], s[1], s[0]),
+            r.grid.num_voxels() as f64 / secs,
+            harmap::grid::human(peak_rss())
+        );
+        std::fs::remove_dir_all(&out)?;
+    }
+    Ok(())
+}
+
+fn tempfile_dir(given: Option<&PathBuf>) -> anyhow::Result<PathBuf> {
+    let d = given.cloned().unwrap_or_else(|| {
+        std::env::temp_dir().join(format!("harmap-bench-{}", std::process::id()))
+    });
+    std::fs::create_dir_all(&d)?;
+    Ok(d)
+}

@@ -1,0 +1,139 @@
+//! `harmap info`.
+
+use std::io::Write;
+use std::path::PathBuf;
+
+use harmap::run::RunDir;
+use harmap::voxelize::labels::NAMES;
+use serde_json::{json, Value};
+
+use super::Global;
+
+/// Describe a run: grid, labels, center, topology, input, stages and timings.
+///
+/// With --json, print the run's group attributes ("harmap") and a summary per stage as
+/// one JSON object, for scripts.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The run directory.
+    pub run: PathBuf,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn summary(attrs: &Value) -> Value {
+    let mut s = json!({});
+    if let Some(v) = attrs.pointer("/stages/voxelize/result") {
+        let counts: Vec<u64> = v["counts"]
+            .as_array()
+            .map(|a| a.iter().filter_map(Value::as_u64).collect())
+            .unwrap_or_default();
+        let by_name: serde_json::Map<String, Value> = NAMES
+            .iter()
+            .zip(&counts)
+            .map(|(n, c)| ((*n).to_owned(), json!(c)))
+            .collect();
+        s["voxelize"] = json!({
+            "status": attrs.pointer("/stages/voxelize/status"),
+            "seconds": attrs.pointer("/stages/voxelize/seconds"),
+            "labels": by_name,
+            "euler_characteristic": v["euler_characteristic"],
+            "genus": v["genus"],
+            "components": v["components"],
+            "cavities_filled": v["cavities_filled"],
+            "center_depth_voxels": v["center_depth"],
+            "inside_rule": v["inside_rule"],
+        });
+    }
+    s
+}
+
+/// Run `harmap info`.
+pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
+    let run = RunDir::open(&a.run).map_err(harmap::Error::from)?;
+    let attrs = run.attrs().map_err(harmap::Error::from)?;
+    let mut out = std::io::stdout().lock();
+    if a.json {
+        let doc = json!({"path": run.root(), "harmap": attrs, "summary": summary(&attrs)});
+        writeln!(out, "{}", serde_json::to_string_pretty(&doc)?)?;
+        return Ok(());
+    }
+    writeln!(out, "run:      {}", run.root().display())?;
+    writeln!(out, "format:   harmap {}", attrs["format_version"])?;
+    if let Some(i) = attrs.get("input") {
+        let path = i["path"].as_str().map_or_else(
+            || format!("built-in {}", i["builtin"].as_str().unwrap_or("?")),
+            str::to_owned,
+        );
+        writeln!(out, "input:    {path}")?;
+        if let Some(h) = i["sha256"].as_str() {
+            writeln!(out, "sha256:   {h}")?;
+        }
+    }
+    if let Ok(g) = run.grid() {
+        writeln!(
+            out,
+            "grid:     {} x {} x {} (x, y, z) = {} voxels, spacing {}{}",
+            g.shape[2],
+            g.shape[1],
+            g.shape[0],
+            g.num_voxels(),
+            g.spacing,
+            g.unit
+                .as_deref()
+                .map(|u| format!(" {u}"))
+                .unwrap_or_default()
+        )?;
+        writeln!(
+            out,
+            "origin:   ({}, {}, {}) (center of voxel [0, 0, 0])",
+            g.origin[0], g.origin[1], g.origin[2]
+        )?;
+    }
+    if let (Some(c), Some(v)) = (attrs.get("center"), attrs.get("center_voxel")) {
+        let depth = attrs
+            .pointer("/stages/voxelize/result/center_depth")
+            .and_then(Value::as_f64)
+            .unwrap_or(f64::NAN);
+        writeln!(
+            out,
+            "center:   {c} = voxel {v} [z, y, x], {depth:.1} voxels deep"
+        )?;
+    }
+    if let Some(v) = attrs.pointer("/stages/voxelize/result") {
+        write!(out, "labels:  ")?;
+        if let Some(counts) = v["counts"].as_array() {
+            for (n, c) in NAMES.iter().zip(counts) {
+                write!(out, " {n} {c}")?;
+            }
+        }
+        writeln!(out)?;
+        writeln!(
+            out,
+            "topology: {} piece(s), genus {}, Euler characteristic {}, {} cavities filled ({} voxels), inside by {}",
+            v["components"], v["genus"], v["euler_characteristic"], v["cavities_filled"], v["cavity_voxels"], v["inside_rule"].as_str().unwrap_or("?")
+        )?;
+    }
+    if let Some(stages) = attrs.get("stages").and_then(Value::as_object) {
+        for (name, st) in stages {
+            let timings = st
+                .pointer("/result/timings")
+                .and_then(Value::as_array)
+                .map(|t| {
+                    t.iter()
+                        .filter_map(|p| Some(format!("{} {:.2}s", p[0].as_str()?, p[1].as_f64()?)))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                });
+            writeln!(
+                out,
+                "stage:    {name} {} in {:.2}s{}",
+                st["status"].as_str().unwrap_or("?"),
+                st["seconds"].as_f64().unwrap_or(f64::NAN),
+                timings.map(|t| format!(" ({t})")).unwrap_or_default()
+            )?;
+        }
+    }
+    Ok(())
+}

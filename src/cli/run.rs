@@ -1,0 +1,94 @@
+//! `harmap run`: the whole pipeline in one command, as far as it is built.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use harmap::input::InputOptions;
+use harmap::pipeline::{voxelize_new_run, Source};
+use harmap::run::RunDir;
+
+use super::progress::Bars;
+use super::voxelize::VoxelizeArgs;
+use super::Global;
+
+/// Run the pipeline on a shape: today, voxelization (labels and center).
+///
+/// With no INPUT, runs on the built-in five-armed starfish. Stages already done in RUN
+/// are skipped, so a run that was stopped is finished by giving the same command again;
+/// --force starts over.
+///
+/// Examples:
+///   harmap run                                 # the built-in starfish -> starfish.harmap
+///   harmap run spot.obj -o spot.harmap --resolution 96
+#[derive(clap::Args, Debug)]
+#[command(verbatim_doc_comment)]
+pub struct Args {
+    /// The shape (default: the built-in starfish).
+    pub input: Option<PathBuf>,
+    /// The run directory [default: INPUT's name with .harmap, or starfish.harmap].
+    #[arg(short, long, value_name = "RUN")]
+    pub output: Option<PathBuf>,
+    /// Redo every stage, replacing RUN.
+    #[arg(long)]
+    pub force: bool,
+    #[command(flatten)]
+    pub opts: VoxelizeArgs,
+}
+
+/// Run `harmap run`.
+pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
+    let out = a.output.clone().unwrap_or_else(|| {
+        let stem =
+            a.input
+                .as_ref()
+                .and_then(|p| p.file_name())
+                .map_or("starfish".to_owned(), |n| {
+                    let n = n.to_string_lossy();
+                    n.split('.').next().unwrap_or("shape").to_owned()
+                });
+        PathBuf::from(format!("{stem}.harmap"))
+    });
+    let (opts, iopts): (_, InputOptions) = a.opts.options()?;
+    let bars = Bars::new(g);
+    let done = !a.force
+        && RunDir::open(&out)
+            .ok()
+            .and_then(|r| r.attrs().ok())
+            .is_some_and(|v| {
+                v.pointer("/stages/voxelize/status")
+                    .and_then(|s| s.as_str())
+                    == Some("done")
+            });
+    if done {
+        g.say(&format!(
+            "voxelize: already done in {} (skipped; --force redoes it)",
+            out.display()
+        ));
+    } else {
+        let source = a
+            .input
+            .as_ref()
+            .map_or(Source::Starfish, |p| Source::File(p, &iopts));
+        let (_, r) = voxelize_new_run(&source, &opts, &out, a.force, &bars)
+            .with_context(|| format!("voxelizing into {}", out.display()))?;
+        let s = r.grid.shape;
+        g.say(&format!(
+            "voxelize: {} x {} x {} voxels, {} solid, genus {}, center ({:.3}, {:.3}, {:.3}), {:.2}s",
+            s[2],
+            s[1],
+            s[0],
+            r.counts[1] + r.counts[2] + r.counts[3],
+            r.genus,
+            r.center[0],
+            r.center[1],
+            r.center[2],
+            r.timings.iter().map(|t| t.1).sum::<f64>()
+        ));
+    }
+    g.say(&format!(
+        "{}: voxelized. The solve, trace and map stages are not built yet; see `harmap info {}`.",
+        out.display(),
+        out.display()
+    ));
+    Ok(())
+}

@@ -1,0 +1,192 @@
+//! `harmap voxelize`.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use harmap::grid::MemBudget;
+use harmap::input::{InputOptions, RawDtype, RawSpec};
+use harmap::pipeline::{voxelize_new_run, Source};
+use harmap::voxelize::{labels::NAMES, Scratch, VoxelizeOptions};
+
+use super::progress::Bars;
+use super::{Global, UsageError};
+
+/// Voxelize a shape into a new run directory: labels and the shape center.
+///
+/// INPUT is a closed triangle surface (.obj, .stl, .ply), a TetGen mesh (.node/.ele),
+/// a label volume (a Zarr v3 array directory, or .raw with --raw-shape and --raw-dtype;
+/// anything > 0 is inside), any of them optionally .gz. The solid must be one piece of
+/// genus 0: enclosed cavities are filled, and handles or several pieces are refused
+/// unless --allow-genus or --keep-largest says otherwise.
+///
+/// Labels written to RUN/labels/0: 0 exterior, 1 boundary, 2 interior, 3 center,
+/// 4..7 the exterior layers 1..4.
+///
+/// Examples:
+///   harmap voxelize spot.obj -o spot.harmap --resolution 128
+///   harmap voxelize armadillo.obj.gz -o arm.harmap --resolution 1024 --mem 256MiB
+///   harmap voxelize seg.raw --raw-shape 200,256,256 --raw-dtype u8 --spacing 0.5 -o seg.harmap
+#[derive(clap::Args, Debug)]
+#[command(verbatim_doc_comment)]
+pub struct Args {
+    /// The shape to voxelize.
+    pub input: PathBuf,
+    /// The run directory to create.
+    #[arg(short, long, value_name = "RUN")]
+    pub output: PathBuf,
+    /// Replace RUN if it exists.
+    #[arg(long)]
+    pub force: bool,
+    #[command(flatten)]
+    pub opts: VoxelizeArgs,
+}
+
+/// Voxelization flags, shared with `harmap run`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct VoxelizeArgs {
+    /// Voxels along the longest side of the shape's bounding box [default: 128].
+    #[arg(long, value_name = "N", conflicts_with = "spacing")]
+    pub resolution: Option<u64>,
+    /// Voxel size in world units (instead of --resolution). For label volumes: the size
+    /// of their voxels [default: 1].
+    #[arg(long, value_name = "H")]
+    pub spacing: Option<f64>,
+    /// Voxels of empty space added on every side (at least 5).
+    #[arg(long, value_name = "VOXELS", default_value_t = 6)]
+    pub padding: u64,
+    /// Shape center in world coordinates [default: the voxel deepest inside].
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_point)]
+    pub center: Option<[f64; 3]>,
+    /// phi = 0 on every voxel within this many voxels of the center.
+    #[arg(long, value_name = "VOXELS", default_value_t = 2.0)]
+    pub center_radius: f64,
+    /// Go on when the solid has handles (genus > 0) or several pieces.
+    #[arg(long)]
+    pub allow_genus: bool,
+    /// Keep only the largest piece of the solid.
+    #[arg(long)]
+    pub keep_largest: bool,
+    /// Unit of the input coordinates, written to the OME-Zarr metadata (e.g. millimeter,
+    /// micrometer, angstrom).
+    #[arg(long)]
+    pub unit: Option<String>,
+    /// Block (chunk) edge in voxels.
+    #[arg(long, value_name = "VOXELS", default_value_t = 64)]
+    pub chunk: u64,
+    /// Memory budget: peak resident memory of the run (e.g. 256MiB, 2GiB).
+    #[arg(long, value_name = "SIZE", default_value = "1GiB")]
+    pub mem: MemBudget,
+    /// Where the intermediate solid grid lives: auto (memory when it fits in half of
+    /// --mem), memory, or disk (a memory-mapped scratch file in the run directory).
+    #[arg(long, value_enum, default_value_t = ScratchArg::Auto)]
+    pub scratch: ScratchArg,
+    /// Shape of a .raw label volume, z,y,x.
+    #[arg(long, value_name = "Z,Y,X", value_parser = parse_shape)]
+    pub raw_shape: Option<[u64; 3]>,
+    /// Element type of a .raw label volume: u8, u16, i16, u32, i32, f32, f64.
+    #[arg(long, value_name = "DTYPE")]
+    pub raw_dtype: Option<RawDtype>,
+}
+
+/// `--scratch` values.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ScratchArg {
+    /// Memory when the grid fits in half the budget, else disk.
+    Auto,
+    /// Always memory.
+    Memory,
+    /// Always a memory-mapped file.
+    Disk,
+}
+
+fn parse_point(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|t| t.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("'{s}' is not a point; write it as X,Y,Z"))?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
+        _ => Err(format!(
+            "'{s}' is not a point; write it as X,Y,Z with three finite numbers"
+        )),
+    }
+}
+
+fn parse_shape(s: &str) -> Result<[u64; 3], String> {
+    let v: Vec<u64> = s
+        .split(',')
+        .map(|t| t.trim().parse::<u64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("'{s}' is not a shape; write it as Z,Y,X"))?;
+    match v[..] {
+        [z, y, x] => Ok([z, y, x]),
+        _ => Err(format!("'{s}' is not a shape; write it as Z,Y,X")),
+    }
+}
+
+impl VoxelizeArgs {
+    /// The library options and input options these flags say.
+    pub fn options(&self) -> anyhow::Result<(VoxelizeOptions, InputOptions)> {
+        let raw = match (self.raw_shape, self.raw_dtype) {
+            (Some(shape), Some(dtype)) => Some(RawSpec { shape, dtype }),
+            (None, None) => None,
+            _ => return Err(UsageError("--raw-shape and --raw-dtype go together".into()).into()),
+        };
+        Ok((
+            VoxelizeOptions {
+                resolution: self.resolution,
+                spacing: self.spacing,
+                padding: self.padding,
+                center: self.center,
+                center_radius: self.center_radius,
+                allow_genus: self.allow_genus,
+                keep_largest: self.keep_largest,
+                chunk: self.chunk,
+                mem: self.mem,
+                unit: self.unit.clone(),
+                scratch: match self.scratch {
+                    ScratchArg::Auto => Scratch::Auto,
+                    ScratchArg::Memory => Scratch::Memory,
+                    ScratchArg::Disk => Scratch::Disk,
+                },
+            },
+            InputOptions { raw },
+        ))
+    }
+}
+
+/// Run `harmap voxelize`.
+pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
+    let (opts, iopts) = a.opts.options()?;
+    let bars = Bars::new(g);
+    let (run, r) = voxelize_new_run(
+        &Source::File(&a.input, &iopts),
+        &opts,
+        &a.output,
+        a.force,
+        &bars,
+    )
+    .with_context(|| format!("voxelizing {}", a.input.display()))?;
+    let s = r.grid.shape;
+    g.say(&format!(
+        "{}: {} x {} x {} voxels of {:.6} ({} solid), center ({:.4}, {:.4}, {:.4}) at depth {:.1} voxels, genus {}",
+        run.root().display(),
+        s[2],
+        s[1],
+        s[0],
+        r.grid.spacing,
+        r.counts[1] + r.counts[2] + r.counts[3],
+        r.center[0],
+        r.center[1],
+        r.center[2],
+        r.center_depth,
+        r.genus
+    ));
+    if g.verbosity > 1 {
+        for (n, c) in NAMES.iter().zip(r.counts) {
+            g.say(&format!("  {n:>9}: {c}"));
+        }
+    }
+    Ok(())
+}

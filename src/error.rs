@@ -1,0 +1,32 @@
+//! `harmap::Error`: the errors of every stage, composed.
+
+/// Any error of the library. The CLI maps [`Error::is_bad_input`] to exit code 2.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// Reading the input shape failed.
+    #[error(transparent)]
+    Input(#[from] crate::input::InputError),
+    /// Grid storage failed.
+    #[error(transparent)]
+    Grid(#[from] crate::grid::GridError),
+    /// The run directory is missing, damaged or of another version.
+    #[error(transparent)]
+    Run(#[from] crate::run::RunError),
+    /// Voxelization failed or found a shape it cannot use.
+    #[error(transparent)]
+    Voxelize(#[from] crate::voxelize::VoxelizeError),
+}
+
+impl Error {
+    /// Whether the error is the user's input or options (exit code 2) rather than a
+    /// failure of the run (exit code 1).
+    #[must_use]
+    pub fn is_bad_input(&self) -> bool {
+        match self {
+            Error::Input(_) => true,
+            Error::Grid(e) => matches!(e, crate::grid::GridError::Budget { .. }),
+            Error::Run(e) => e.is_bad_input(),
+            Error::Voxelize(e) => e.is_bad_input(),
+        }
+    }
+}

@@ -1,0 +1,89 @@
+//! In-memory backend: one owned vector per block. For tests and small grids.
+
+use std::sync::RwLock;
+
+use super::store::check_block;
+use super::{copy_overlap, to_usize, Block, BlockStore, GridError, GridSpec, Scalar};
+use crate::math::{volume, Idx3};
+
+/// A grid held in memory, block by block.
+pub struct MemStore<T> {
+    spec: GridSpec,
+    fill: T,
+    blocks: Vec<RwLock<Option<Vec<T>>>>,
+}
+
+impl<T: Scalar> MemStore<T> {
+    /// An empty grid; unwritten blocks read as `fill`.
+    #[must_use]
+    pub fn new(spec: GridSpec, fill: T) -> Self {
+        let n = spec.num_blocks() as usize;
+        Self {
+            spec,
+            fill,
+            blocks: (0..n).map(|_| RwLock::new(None)).collect(),
+        }
+    }
+}
+
+impl<T: Scalar> BlockStore<T> for MemStore<T> {
+    fn spec(&self) -> &GridSpec {
+        &self.spec
+    }
+
+    fn read_block(&self, b: Idx3) -> Result<Vec<T>, GridError> {
+        check_block::<T>(&self.spec, b, None)?;
+        let slot = self.blocks[self.spec.block_linear(b) as usize]
+            .read()
+            .expect("lock");
+        Ok(match &*slot {
+            Some(v) => v.clone(),
+            None => vec![self.fill; volume(self.spec.block_shape(b)) as usize],
+        })
+    }
+
+    fn write_block(&self, b: Idx3, data: &[T]) -> Result<(), GridError> {
+        check_block(&self.spec, b, Some(data))?;
+        *self.blocks[self.spec.block_linear(b) as usize]
+            .write()
+            .expect("lock") = Some(data.to_vec());
+        Ok(())
+    }
+
+    fn read_region(
+        &self,
+        origin: [i64; 3],
+        shape: [usize; 3],
+        outside: T,
+    ) -> Result<Block<T>, GridError> {
+        // Copy only the overlapping rows of each block, under its read lock.
+        let spec = &self.spec;
+        let mut out = Block::filled(origin, shape, outside);
+        let c = spec.chunk.map(|c| c as i64);
+        let lo = [0, 1, 2].map(|a| origin[a].max(0));
+        let hi = [0, 1, 2].map(|a| (origin[a] + shape[a] as i64).min(spec.shape[a] as i64));
+        if (0..3).any(|a| lo[a] >= hi[a]) {
+            return Ok(out);
+        }
+        for bz in lo[0] / c[0]..=(hi[0] - 1) / c[0] {
+            for by in lo[1] / c[1]..=(hi[1] - 1) / c[1] {
+                for bx in lo[2] / c[2]..=(hi[2] - 1) / c[2] {
+                    let b = [bz as u64, by as u64, bx as u64];
+                    let slot = self.blocks[spec.block_linear(b) as usize]
+                        .read()
+                        .expect("lock");
+                    let s = spec.block_start(b).map(|v| v as i64);
+                    match &*slot {
+                        Some(v) => copy_overlap(v, s, to_usize(spec.block_shape(b)), &mut out),
+                        None if self.fill != outside => {
+                            let f = vec![self.fill; volume(spec.block_shape(b)) as usize];
+                            copy_overlap(&f, s, to_usize(spec.block_shape(b)), &mut out);
+                        }
+                        None => {}
+                    }
+                }
+            }
+        }
+        Ok(out)
+    }
+}

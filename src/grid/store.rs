@@ -1,0 +1,193 @@
+//! The block-access trait every stage reads and writes grids through.
+//!
+//! Stages never import `zarrs` or `memmap2`: they see a [`BlockStore`]. Three backends
+//! implement it: [`ZarrStore`](super::ZarrStore) (what users keep),
+//! [`MmapStore`](super::MmapStore) (uncompressed scratch) and
+//! [`MemStore`](super::MemStore) (tests and small grids).
+//!
+//! **Concurrency rule: no two workers may write the same block at the same time.** Reads
+//! of blocks that nobody writes during the read are always safe.
+
+use super::{copy_overlap, to_usize, Block, GridSpec};
+use crate::math::Idx3;
+
+/// Element types a grid may hold.
+pub trait Scalar:
+    Copy
+    + Send
+    + Sync
+    + PartialEq
+    + std::fmt::Debug
+    + zarrs::array::ElementOwned
+    + Into<zarrs::array::builder::ArrayBuilderFillValue>
+    + 'static
+{
+    /// The Zarr v3 data type name.
+    const ZARR_DTYPE: &'static str;
+    /// Size in bytes.
+    const SIZE: usize = std::mem::size_of::<Self>();
+    /// Write `self` as little-endian bytes into `out` (length [`Self::SIZE`]).
+    fn write_le(self, out: &mut [u8]);
+    /// Read from little-endian bytes.
+    fn read_le(b: &[u8]) -> Self;
+}
+
+macro_rules! scalar {
+    ($t:ty, $name:literal) => {
+        impl Scalar for $t {
+            const ZARR_DTYPE: &'static str = $name;
+            fn write_le(self, out: &mut [u8]) {
+                out.copy_from_slice(&self.to_le_bytes());
+            }
+            fn read_le(b: &[u8]) -> Self {
+                <$t>::from_le_bytes(b.try_into().expect("slice of SIZE bytes"))
+            }
+        }
+    };
+}
+scalar!(u8, "uint8");
+scalar!(u16, "uint16");
+scalar!(u32, "uint32");
+scalar!(u64, "uint64");
+scalar!(i32, "int32");
+scalar!(f32, "float32");
+scalar!(f64, "float64");
+
+/// Errors of grid storage.
+#[derive(Debug, thiserror::Error)]
+pub enum GridError {
+    /// A filesystem operation failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or directory.
+        path: std::path::PathBuf,
+        /// What the OS said.
+        source: std::io::Error,
+    },
+    /// zarrs failed to read or write an array.
+    #[error("zarr array {path}: {message}")]
+    Zarr {
+        /// The array path.
+        path: String,
+        /// What zarrs said.
+        message: String,
+    },
+    /// Data of the wrong size was handed to a write.
+    #[error("block {block:?}: expected {expected} values, got {got}")]
+    BlockSize {
+        /// The block index.
+        block: Idx3,
+        /// Values the block holds.
+        expected: usize,
+        /// Values handed in.
+        got: usize,
+    },
+    /// A block index outside the grid.
+    #[error("block {block:?} is outside the block grid {blocks:?}")]
+    BlockIndex {
+        /// The block index.
+        block: Idx3,
+        /// Blocks per axis.
+        blocks: Idx3,
+    },
+    /// The memory budget cannot hold what a stage needs.
+    #[error(
+        "memory budget {budget} is too small: {what} needs {needed}; use --mem {suggest} or more"
+    )]
+    Budget {
+        /// The budget, human readable.
+        budget: String,
+        /// What did not fit.
+        what: String,
+        /// Bytes needed, human readable.
+        needed: String,
+        /// A budget that would do.
+        suggest: String,
+    },
+}
+
+/// Block access to a chunked grid of `T`.
+pub trait BlockStore<T: Scalar>: Send + Sync {
+    /// The grid and its block shape.
+    fn spec(&self) -> &GridSpec;
+
+    /// Read block `b` (its true extent; edge blocks are smaller than a chunk). Blocks
+    /// never written read as the store's fill value.
+    fn read_block(&self, b: Idx3) -> Result<Vec<T>, GridError>;
+
+    /// Write block `b`; `data` has the block's true extent.
+    fn write_block(&self, b: Idx3, data: &[T]) -> Result<(), GridError>;
+
+    /// Read the box `[origin, origin + shape)` in grid coordinates. Voxels outside the
+    /// grid take `outside`. The default assembles it from whole blocks; backends that can
+    /// read sub-blocks cheaply override it.
+    fn read_region(
+        &self,
+        origin: [i64; 3],
+        shape: [usize; 3],
+        outside: T,
+    ) -> Result<Block<T>, GridError> {
+        let spec = self.spec();
+        let mut out = Block::filled(origin, shape, outside);
+        let nb = spec.blocks();
+        let lo = [0, 1, 2].map(|a| origin[a].max(0) as u64 / spec.chunk[a]);
+        let hi = [0, 1, 2].map(|a| {
+            let end = (origin[a] + shape[a] as i64).min(spec.shape[a] as i64);
+            if end <= 0 {
+                0
+            } else {
+                ((end as u64 - 1) / spec.chunk[a] + 1).min(nb[a])
+            }
+        });
+        for bz in lo[0]..hi[0] {
+            for by in lo[1]..hi[1] {
+                for bx in lo[2]..hi[2] {
+                    let b = [bz, by, bx];
+                    let data = self.read_block(b)?;
+                    let s = spec.block_start(b).map(|c| c as i64);
+                    copy_overlap(&data, s, to_usize(spec.block_shape(b)), &mut out);
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Read block `b` with a halo of `halo` voxels on every side. Voxels of the halo that
+    /// fall outside the grid take `outside`.
+    fn read_block_halo(&self, b: Idx3, halo: usize, outside: T) -> Result<Block<T>, GridError> {
+        let spec = self.spec();
+        let start = spec.block_start(b);
+        let shape = spec.block_shape(b);
+        let h = halo as i64;
+        self.read_region(
+            start.map(|c| c as i64 - h),
+            shape.map(|c| c as usize + 2 * halo),
+            outside,
+        )
+    }
+}
+
+pub(crate) fn check_block<T>(
+    spec: &GridSpec,
+    b: Idx3,
+    data: Option<&[T]>,
+) -> Result<(), GridError> {
+    let nb = spec.blocks();
+    if (0..3).any(|a| b[a] >= nb[a]) {
+        return Err(GridError::BlockIndex {
+            block: b,
+            blocks: nb,
+        });
+    }
+    if let Some(d) = data {
+        let expected = crate::math::volume(spec.block_shape(b)) as usize;
+        if d.len() != expected {
+            return Err(GridError::BlockSize {
+                block: b,
+                expected,
+                got: d.len(),
+            });
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,176 @@
+//! Zarr v3 backend (zarrs, filesystem store): the arrays users keep and exchange.
+//!
+//! Every array is written with `dimension_names` `[z, y, x]` and portable codecs only
+//! (bytes, optionally zstd), so zarr-python, tensorstore and napari open it. Chunks equal
+//! to the fill value are not written: a missing chunk means "fill", never "not computed".
+//! zarrs would run codecs on rayon's pool; our own loops are parallel over blocks, so
+//! every call here caps zarrs' concurrency to 1.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use zarrs::array::codec::ZstdCodec;
+use zarrs::array::{Array, ArrayBuilder, CodecOptions};
+use zarrs::filesystem::FilesystemStore;
+
+use super::store::check_block;
+use super::{BlockStore, GridError, GridSpec, Scalar};
+use crate::math::{volume, Idx3};
+
+/// Compression of a stored array.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Compression {
+    /// Raw little-endian bytes (fast; for fields that barely compress).
+    None,
+    /// zstd at the given level (for labels and exported copies).
+    Zstd(i32),
+}
+
+/// A 3-D Zarr v3 array on the filesystem, accessed block by block.
+pub struct ZarrStore<T> {
+    spec: GridSpec,
+    array: Array<FilesystemStore>,
+    fill: T,
+    path: String,
+    options: CodecOptions,
+}
+
+fn zerr(path: &str, e: impl std::fmt::Display) -> GridError {
+    GridError::Zarr {
+        path: path.to_owned(),
+        message: e.to_string(),
+    }
+}
+
+/// Open the filesystem store rooted at `root`.
+pub fn fs_store(root: &Path) -> Result<Arc<FilesystemStore>, GridError> {
+    FilesystemStore::new(root)
+        .map(Arc::new)
+        .map_err(|e| GridError::Io {
+            path: PathBuf::from(root),
+            source: std::io::Error::other(e.to_string()),
+        })
+}
+
+impl<T: Scalar> ZarrStore<T> {
+    /// Create the array at `path` (e.g. `/labels/0`) inside the store rooted at `root`
+    /// and write its metadata. `attributes` go into the array's `zarr.json`.
+    pub fn create(
+        root: &Path,
+        path: &str,
+        spec: GridSpec,
+        fill: T,
+        compression: Compression,
+        attributes: serde_json::Map<String, serde_json::Value>,
+    ) -> Result<Self, GridError> {
+        let store = fs_store(root)?;
+        let mut builder = ArrayBuilder::new(
+            spec.shape.to_vec(),
+            spec.chunk.to_vec(),
+            T::ZARR_DTYPE,
+            fill,
+        );
+        builder
+            .dimension_names(Some(["z", "y", "x"]))
+            .attributes(attributes);
+        if let Compression::Zstd(level) = compression {
+            builder.bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(level, false))]);
+        }
+        let array = builder.build(store, path).map_err(|e| zerr(path, e))?;
+        array.store_metadata().map_err(|e| zerr(path, e))?;
+        Ok(Self::wrap(spec, array, fill, path))
+    }
+
+    /// Open an existing array. `spec` supplies the world placement (origin, spacing,
+    /// unit); its shape must equal the array's and its chunk shape is replaced by the
+    /// array's.
+    pub fn open(root: &Path, path: &str, mut spec: GridSpec) -> Result<Self, GridError> {
+        let store = fs_store(root)?;
+        let array = Array::open(store, path).map_err(|e| zerr(path, e))?;
+        if array.shape() != spec.shape {
+            return Err(zerr(
+                path,
+                format!(
+                    "shape {:?} differs from the grid {:?}",
+                    array.shape(),
+                    spec.shape
+                ),
+            ));
+        }
+        let chunk = array.chunk_shape(&[0, 0, 0]).map_err(|e| zerr(path, e))?;
+        spec.chunk = [chunk[0].get(), chunk[1].get(), chunk[2].get()];
+        let fill_bytes = array.fill_value().as_ne_bytes().to_vec();
+        if fill_bytes.len() != T::SIZE {
+            return Err(zerr(path, format!("data type is not {}", T::ZARR_DTYPE)));
+        }
+        let fill = T::read_le(&fill_bytes);
+        Ok(Self::wrap(spec, array, fill, path))
+    }
+
+    fn wrap(spec: GridSpec, array: Array<FilesystemStore>, fill: T, path: &str) -> Self {
+        let mut options = CodecOptions::default();
+        options.set_concurrent_target(1);
+        Self {
+            spec,
+            array,
+            fill,
+            path: path.to_owned(),
+            options,
+        }
+    }
+
+    /// The fill value.
+    #[must_use]
+    pub fn fill(&self) -> T {
+        self.fill
+    }
+}
+
+impl<T: Scalar> BlockStore<T> for ZarrStore<T> {
+    fn spec(&self) -> &GridSpec {
+        &self.spec
+    }
+
+    fn read_block(&self, b: Idx3) -> Result<Vec<T>, GridError> {
+        check_block::<T>(&self.spec, b, None)?;
+        let full: Vec<T> = self
+            .array
+            .retrieve_chunk_opt(&b, &self.options)
+            .map_err(|e| zerr(&self.path, e))?;
+        let shape = self.spec.block_shape(b);
+        if shape == self.spec.chunk {
+            return Ok(full);
+        }
+        let c = self.spec.chunk.map(|c| c as usize);
+        let s = shape.map(|c| c as usize);
+        let mut out = Vec::with_capacity(volume(shape) as usize);
+        for z in 0..s[0] {
+            for y in 0..s[1] {
+                let o = (z * c[1] + y) * c[2];
+                out.extend_from_slice(&full[o..o + s[2]]);
+            }
+        }
+        Ok(out)
+    }
+
+    fn write_block(&self, b: Idx3, data: &[T]) -> Result<(), GridError> {
+        check_block(&self.spec, b, Some(data))?;
+        let shape = self.spec.block_shape(b);
+        let res = if shape == self.spec.chunk {
+            self.array.store_chunk_opt(&b, data, &self.options)
+        } else {
+            // zarrs stores whole chunks: pad edge blocks with the fill value.
+            let c = self.spec.chunk.map(|c| c as usize);
+            let s = shape.map(|c| c as usize);
+            let mut full = vec![self.fill; c[0] * c[1] * c[2]];
+            for z in 0..s[0] {
+                for y in 0..s[1] {
+                    let o = (z * c[1] + y) * c[2];
+                    full[o..o + s[2]].copy_from_slice(&data[(z * s[1] + y) * s[2]..][..s[2]]);
+                }
+            }
+            self.array.store_chunk_opt(&b, &full, &self.options)
+        };
+        res.map_err(|e| zerr(&self.path, e))
+    }
+}

@@ -1,0 +1,89 @@
+//! Reading shapes: triangle meshes (OBJ, STL, PLY), tetrahedral meshes (TetGen), and
+//! label volumes that are already voxelized (Zarr v3 arrays, raw bytes).
+//!
+//! Every reader returns an [`InputError`] naming the file (and the line, for text
+//! formats) on bad input; none panics. Any file may be gzip-compressed (`.gz`).
+
+mod error;
+mod mesh;
+mod obj;
+mod ply;
+mod source;
+pub mod starfish;
+mod stl;
+mod tetgen;
+mod volume;
+
+use std::path::{Path, PathBuf};
+
+pub use error::InputError;
+pub use mesh::{MeshTopology, TriMesh};
+pub use source::{extension, read_bytes, sha256_file};
+pub use volume::{LabelVolume, RawDtype, RawSpec};
+
+/// A shape to voxelize.
+#[derive(Debug)]
+pub enum Shape {
+    /// A triangle surface (for a tetrahedral mesh: its boundary faces, wound outward).
+    Mesh(TriMesh),
+    /// A label volume: "anything > 0 is inside", one voxel per array element.
+    Volume(LabelVolume),
+}
+
+/// How to read inputs whose file does not describe itself.
+#[derive(Clone, Debug, Default)]
+pub struct InputOptions {
+    /// Shape and data type of a `.raw` volume.
+    pub raw: Option<RawSpec>,
+}
+
+/// Read the shape at `path`, choosing the reader by extension.
+pub fn load(path: &Path, options: &InputOptions) -> Result<Shape, InputError> {
+    if path.is_dir() {
+        return LabelVolume::open_zarr(path).map(Shape::Volume);
+    }
+    if !path.exists() {
+        return Err(InputError::io(
+            path,
+            std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
+        ));
+    }
+    let (ext, _) = extension(path);
+    match ext.as_str() {
+        "raw" | "bin" => {
+            let spec = options.raw.clone().ok_or_else(|| {
+                InputError::invalid(
+                    path,
+                    "a raw volume needs its layout: give --raw-shape Z,Y,X and --raw-dtype (u8, u16, i16, u32, i32, f32 or f64)",
+                )
+            })?;
+            LabelVolume::open_raw(path, &spec).map(Shape::Volume)
+        }
+        _ => load_mesh(path).map(Shape::Mesh),
+    }
+}
+
+/// Read a surface (or the boundary of a tetrahedral mesh) from `path`, and check that
+/// every coordinate is finite and every index in range.
+pub fn load_mesh(path: &Path) -> Result<TriMesh, InputError> {
+    let (ext, _) = extension(path);
+    let mesh = match ext.as_str() {
+        "obj" => obj::read(path, &read_bytes(path)?)?,
+        "stl" => stl::read(path, &read_bytes(path)?)?,
+        "ply" => ply::read(path, &read_bytes(path)?)?,
+        "node" | "ele" => tetgen::read(path)?,
+        _ => {
+            return Err(InputError::UnknownFormat {
+                path: PathBuf::from(path),
+                ext,
+            })
+        }
+    };
+    if mesh.triangles.is_empty() {
+        return Err(InputError::invalid(
+            path,
+            "no triangles found: the file holds no surface",
+        ));
+    }
+    Ok(mesh)
+}

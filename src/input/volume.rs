@@ -1,0 +1,281 @@
+//! Label volumes that are already voxelized: a Zarr v3 array, or raw bytes.
+//! "Anything > 0 is inside." Read block by block, never whole.
+
+use std::fs::File;
+use std::os::unix::fs::FileExt;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use zarrs::array::{Array, ArraySubset};
+use zarrs::filesystem::FilesystemStore;
+
+use super::{extension, InputError};
+
+/// Element type of a raw volume.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum RawDtype {
+    /// unsigned 8-bit
+    U8,
+    /// unsigned 16-bit, little endian
+    U16,
+    /// signed 16-bit, little endian
+    I16,
+    /// unsigned 32-bit, little endian
+    U32,
+    /// signed 32-bit, little endian
+    I32,
+    /// 32-bit float, little endian
+    F32,
+    /// 64-bit float, little endian
+    F64,
+}
+
+impl RawDtype {
+    /// Bytes per element.
+    #[must_use]
+    pub fn size(self) -> usize {
+        match self {
+            RawDtype::U8 => 1,
+            RawDtype::U16 | RawDtype::I16 => 2,
+            RawDtype::U32 | RawDtype::I32 | RawDtype::F32 => 4,
+            RawDtype::F64 => 8,
+        }
+    }
+
+    /// Whether the little-endian element in `b` is > 0.
+    fn positive(self, b: &[u8]) -> bool {
+        match self {
+            RawDtype::U8 => b[0] > 0,
+            RawDtype::U16 => u16::from_le_bytes([b[0], b[1]]) > 0,
+            RawDtype::I16 => i16::from_le_bytes([b[0], b[1]]) > 0,
+            RawDtype::U32 => u32::from_le_bytes(b[..4].try_into().expect("4 bytes")) > 0,
+            RawDtype::I32 => i32::from_le_bytes(b[..4].try_into().expect("4 bytes")) > 0,
+            RawDtype::F32 => f32::from_le_bytes(b[..4].try_into().expect("4 bytes")) > 0.0,
+            RawDtype::F64 => f64::from_le_bytes(b[..8].try_into().expect("8 bytes")) > 0.0,
+        }
+    }
+}
+
+impl std::str::FromStr for RawDtype {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Ok(match s.to_ascii_lowercase().as_str() {
+            "u8" | "uint8" => RawDtype::U8,
+            "u16" | "uint16" => RawDtype::U16,
+            "i16" | "int16" => RawDtype::I16,
+            "u32" | "uint32" => RawDtype::U32,
+            "i32" | "int32" => RawDtype::I32,
+            "f32" | "float32" => RawDtype::F32,
+            "f64" | "float64" => RawDtype::F64,
+            _ => {
+                return Err(format!(
+                    "unknown dtype '{s}'; use u8, u16, i16, u32, i32, f32 or f64"
+                ))
+            }
+        })
+    }
+}
+
+/// Layout of a raw volume: C order `[z, y, x]`, little endian, no header.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RawSpec {
+    /// Elements per axis `[z, y, x]`.
+    pub shape: [u64; 3],
+    /// Element type.
+    pub dtype: RawDtype,
+}
+
+enum Source {
+    Zarr(Box<Array<FilesystemStore>>),
+    Raw {
+        file: File,
+        dtype: RawDtype,
+        _tmp: Option<PathBuf>,
+    },
+}
+
+/// A voxelized solid to read box by box.
+pub struct LabelVolume {
+    path: PathBuf,
+    shape: [u64; 3],
+    source: Source,
+}
+
+impl std::fmt::Debug for LabelVolume {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LabelVolume")
+            .field("path", &self.path)
+            .field("shape", &self.shape)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Drop for LabelVolume {
+    fn drop(&mut self) {
+        if let Source::Raw { _tmp: Some(p), .. } = &self.source {
+            let _ = std::fs::remove_file(p);
+        }
+    }
+}
+
+impl LabelVolume {
+    /// Open a Zarr v3 array directory (the directory holding the array's `zarr.json`).
+    pub fn open_zarr(path: &Path) -> Result<Self, InputError> {
+        let bad = |m: String| InputError::invalid(path, m);
+        if !path.join("zarr.json").is_file() {
+            return Err(bad(
+                "a directory input must be a Zarr v3 array (no zarr.json found in it)".into(),
+            ));
+        }
+        let store = FilesystemStore::new(path).map_err(|e| bad(e.to_string()))?;
+        let array = Array::open(Arc::new(store), "/")
+            .map_err(|e| bad(format!("not a readable Zarr v3 array: {e}")))?;
+        let shape: [u64; 3] = array.shape().try_into().map_err(|_| {
+            bad(format!(
+                "a label volume must be 3-D [z, y, x]; this array has shape {:?}",
+                array.shape()
+            ))
+        })?;
+        if shape.contains(&0) {
+            return Err(bad(format!("the array is empty (shape {shape:?})")));
+        }
+        Ok(Self {
+            path: path.to_owned(),
+            shape,
+            source: Source::Zarr(Box::new(array)),
+        })
+    }
+
+    /// Open a raw volume of the given layout. A `.gz` file is decompressed once into a
+    /// temporary file in the system temp directory, so that boxes can be
+    /// read at random.
+    pub fn open_raw(path: &Path, spec: &RawSpec) -> Result<Self, InputError> {
+        let (_, gz) = extension(path);
+        let (file, tmp) = if gz {
+            let tmp = std::env::temp_dir().join(format!(
+                "harmap-raw-{}-{}",
+                std::process::id(),
+                path.file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default()
+            ));
+            let src = File::open(path).map_err(|e| InputError::io(path, e))?;
+            let mut dec = flate2::read::MultiGzDecoder::new(std::io::BufReader::new(src));
+            let mut out = File::create(&tmp).map_err(|e| InputError::io(&tmp, e))?;
+            std::io::copy(&mut dec, &mut out)
+                .map_err(|e| InputError::invalid(path, format!("cannot gunzip: {e}")))?;
+            (
+                File::open(&tmp).map_err(|e| InputError::io(&tmp, e))?,
+                Some(tmp),
+            )
+        } else {
+            (File::open(path).map_err(|e| InputError::io(path, e))?, None)
+        };
+        let len = file.metadata().map_err(|e| InputError::io(path, e))?.len();
+        let want = spec.shape.iter().product::<u64>() * spec.dtype.size() as u64;
+        if spec.shape.contains(&0) || len != want {
+            if let Some(t) = &tmp {
+                let _ = std::fs::remove_file(t);
+            }
+            return Err(InputError::invalid(
+                path,
+                format!(
+                    "{len} bytes, but --raw-shape {:?} of {:?} needs {want}; check the shape (z,y,x) and dtype",
+                    spec.shape, spec.dtype
+                ),
+            ));
+        }
+        Ok(Self {
+            path: path.to_owned(),
+            shape: spec.shape,
+            source: Source::Raw {
+                file,
+                dtype: spec.dtype,
+                _tmp: tmp,
+            },
+        })
+    }
+
+    /// The file or directory read.
+    #[must_use]
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Elements per axis `[z, y, x]`.
+    #[must_use]
+    pub fn shape(&self) -> [u64; 3] {
+        self.shape
+    }
+
+    /// Whether each voxel of the box `[start, start + size)` is inside (> 0). The box
+    /// must lie within the volume. C order.
+    pub fn read_inside(&self, start: [u64; 3], size: [u64; 3]) -> Result<Vec<bool>, InputError> {
+        let n = (size[0] * size[1] * size[2]) as usize;
+        match &self.source {
+            Source::Zarr(array) => {
+                let subset = ArraySubset::new_with_start_shape(start.to_vec(), size.to_vec())
+                    .map_err(|e| InputError::invalid(&self.path, e.to_string()))?;
+                let bytes: zarrs::array::ArrayBytes<'static> =
+                    array.retrieve_array_subset(&subset).map_err(|e| {
+                        InputError::invalid(&self.path, format!("reading {start:?}+{size:?}: {e}"))
+                    })?;
+                let raw = bytes
+                    .into_fixed()
+                    .map_err(|e| InputError::invalid(&self.path, e.to_string()))?;
+                let dt = array.data_type();
+                let es = raw.len() / n.max(1);
+                let dtype = zarr_dtype(&dt.to_string(), es).ok_or_else(|| {
+                    InputError::invalid(
+                        &self.path,
+                        format!("unsupported label data type {dt}; use an integer or float type"),
+                    )
+                })?;
+                Ok(raw.chunks_exact(es).map(|b| dtype.positive_ne(b)).collect())
+            }
+            Source::Raw { file, dtype, .. } => {
+                let es = dtype.size();
+                let mut out = Vec::with_capacity(n);
+                let mut row = vec![0u8; size[2] as usize * es];
+                for z in 0..size[0] {
+                    for y in 0..size[1] {
+                        let off = (((start[0] + z) * self.shape[1] + start[1] + y) * self.shape[2]
+                            + start[2])
+                            * es as u64;
+                        file.read_exact_at(&mut row, off)
+                            .map_err(|e| InputError::io(&self.path, e))?;
+                        out.extend(row.chunks_exact(es).map(|b| dtype.positive(b)));
+                    }
+                }
+                Ok(out)
+            }
+        }
+    }
+}
+
+impl RawDtype {
+    /// As [`RawDtype::positive`] but native endian (zarrs hands out native-endian bytes).
+    fn positive_ne(self, b: &[u8]) -> bool {
+        if cfg!(target_endian = "little") {
+            self.positive(b)
+        } else {
+            let mut r = b.to_vec();
+            r.reverse();
+            self.positive(&r)
+        }
+    }
+}
+
+fn zarr_dtype(name: &str, size: usize) -> Option<RawDtype> {
+    let n = name.to_ascii_lowercase();
+    Some(match (n.as_str(), size) {
+        ("uint8" | "bool", 1) => RawDtype::U8,
+        ("uint16", 2) => RawDtype::U16,
+        ("int16", 2) => RawDtype::I16,
+        ("uint32", 4) => RawDtype::U32,
+        ("int32", 4) => RawDtype::I32,
+        ("float32", 4) => RawDtype::F32,
+        ("float64", 8) => RawDtype::F64,
+        _ => return None,
+    })
+}

@@ -1,0 +1,23 @@
+//! Shared numeric aliases and index helpers.
+//!
+//! Axis order is `[z, y, x]` for every index triple; points are `(x, y, z)` in world
+//! units. Grid indices are `u64`: grids of 10^9 voxels and more are the normal case.
+
+/// A point or vector in world units, `(x, y, z)`.
+pub type Vec3 = glam::DVec3;
+
+/// A voxel or block index `[z, y, x]`.
+pub type Idx3 = [u64; 3];
+
+/// Product of the three extents, as `u64`.
+#[must_use]
+pub fn volume(shape: Idx3) -> u64 {
+    shape[0] * shape[1] * shape[2]
+}
+
+/// Linear offset of `(z, y, x)` in a C-order box of `shape`.
+#[inline]
+#[must_use]
+pub fn linear(shape: [usize; 3], z: usize, y: usize, x: usize) -> usize {
+    (z * shape[1] + y) * shape[2] + x
+}

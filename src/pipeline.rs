@@ -1,0 +1,90 @@
+//! Stages chained over a run directory. `harmap run` and the stage subcommands call
+//! these, so a stage run alone and a stage run by the pipeline write the same run.
+
+use std::path::Path;
+use std::time::Instant;
+
+use serde_json::{json, Value};
+
+use crate::input::{self, InputOptions, Shape};
+use crate::progress::Progress;
+use crate::run::{RunDir, Staging};
+use crate::voxelize::{self, VoxelizeOptions, VoxelizeReport};
+
+/// Where the shape comes from.
+#[derive(Clone, Debug)]
+pub enum Source<'a> {
+    /// A file (or a Zarr directory) to read.
+    File(&'a Path, &'a InputOptions),
+    /// The built-in five-armed starfish.
+    Starfish,
+    /// A surface already in memory, with a name for messages.
+    Mesh(&'a crate::input::TriMesh, &'a str),
+}
+
+/// Voxelize `source` into a new run directory at `out` (replacing an existing one only
+/// when `force`). The run is built under a staging name and renamed into place when
+/// whole; on error nothing is left at `out` that was not there before.
+pub fn voxelize_new_run(
+    source: &Source<'_>,
+    opts: &VoxelizeOptions,
+    out: &Path,
+    force: bool,
+    progress: &dyn Progress,
+) -> Result<(RunDir, VoxelizeReport), crate::Error> {
+    let t0 = Instant::now();
+    let (shape, input_meta, name) = match source {
+        Source::File(path, iopts) => {
+            let shape = input::load(path, iopts)?;
+            let sha = if path.is_file() {
+                Value::String(input::sha256_file(path)?)
+            } else {
+                Value::Null
+            };
+            let format = match &shape {
+                Shape::Mesh(_) => input::extension(path).0,
+                Shape::Volume(_) => "label-volume".into(),
+            };
+            let name = path.display().to_string();
+            (
+                shape,
+                json!({"path": name, "sha256": sha, "format": format}),
+                name,
+            )
+        }
+        Source::Starfish => (
+            Shape::Mesh(input::starfish::starfish(64, 240)),
+            json!({"path": null, "builtin": "starfish", "sha256": null, "format": "builtin"}),
+            "built-in starfish".to_owned(),
+        ),
+        Source::Mesh(m, name) => (
+            Shape::Mesh((*m).clone()),
+            json!({"path": name, "sha256": null, "format": "memory"}),
+            (*name).to_owned(),
+        ),
+    };
+    let staging = Staging::begin(out, force)?;
+    let report = voxelize::voxelize(&shape, &name, opts, staging.run(), progress)?;
+    for w in &report.warnings {
+        progress.warn(w);
+    }
+    let seconds = t0.elapsed().as_secs_f64();
+    staging.run().update_attrs(|a| {
+        a.insert(
+            "grid".into(),
+            serde_json::to_value(&report.grid).expect("grid"),
+        );
+        a.insert("center".into(), json!(report.center));
+        a.insert("center_voxel".into(), json!(report.center_voxel));
+        a.insert("input".into(), input_meta);
+        let stages = a.entry("stages").or_insert_with(|| json!({}));
+        stages["voxelize"] = json!({
+            "status": "done",
+            "seconds": seconds,
+            "options": opts,
+            "result": report,
+        });
+    })?;
+    let run = staging.commit()?;
+    Ok((run, report))
+}

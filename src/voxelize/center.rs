@@ -1,0 +1,176 @@
+//! The shape center: the solid voxel deepest inside (largest Euclidean distance to the
+//! nearest non-solid voxel), by an exact distance transform streamed slice by slice.
+//!
+//! Pass 1 (z ascending) records, per column (y, x), the distance along z to the last
+//! non-solid voxel below, as u16 slices in a scratch file. Pass 2 (z descending) takes
+//! the minimum with the distance to the next non-solid voxel above, which gives the exact
+//! 1-D distance along z, then runs the lower-envelope transform of Felzenszwalb and
+//! Huttenlocher along y and x within the slice: the exact squared Euclidean distance.
+//! Resident: a few slices (`O(ny * nx)`), never the grid.
+
+use std::fs::OpenOptions;
+use std::os::unix::fs::FileExt;
+use std::path::Path;
+
+use rayon::prelude::*;
+
+use crate::grid::{BlockStore, GridError};
+use crate::math::Idx3;
+use crate::progress::Progress;
+
+/// Distance cap in voxels (grids are at most 2^15 along an axis).
+const FAR: u32 = 1 << 16;
+
+/// The deepest solid voxel and its distance (voxels) to the nearest non-solid voxel.
+/// Ties go to the lowest `[z, y, x]` in C order.
+pub fn deepest_voxel(
+    store: &dyn BlockStore<u8>,
+    scratch: &Path,
+    progress: &dyn Progress,
+) -> Result<(Idx3, f64), crate::Error> {
+    let spec = store.spec();
+    let [nz, ny, nx] = spec.shape.map(|c| c as usize);
+    let plane = ny * nx;
+    let io = |source| GridError::Io {
+        path: scratch.to_owned(),
+        source,
+    };
+    let file = OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(true)
+        .open(scratch)
+        .map_err(io)?;
+    let slice = |z: usize| -> Result<Vec<u8>, GridError> {
+        Ok(store.read_region([z as i64, 0, 0], [1, ny, nx], 0)?.data)
+    };
+    progress.start("voxelize: center (distance transform)", 2 * nz as u64);
+    let mut last = vec![FAR; plane]; // z of the last non-solid voxel, FAR = none yet
+    let mut bytes = vec![0u8; plane * 2];
+    for z in 0..nz {
+        let s = slice(z)?;
+        for (i, (&v, l)) in s.iter().zip(last.iter_mut()).enumerate() {
+            if v != 1 {
+                *l = z as u32;
+            }
+            let d = if *l == FAR { FAR - 1 } else { z as u32 - *l };
+            bytes[2 * i..2 * i + 2]
+                .copy_from_slice(&(d.min(u32::from(u16::MAX)) as u16).to_le_bytes());
+        }
+        file.write_all_at(&bytes, (z * plane * 2) as u64)
+            .map_err(io)?;
+        progress.advance(1);
+    }
+    let mut next = vec![FAR; plane];
+    let mut best: (u64, Idx3) = (0, [0, 0, 0]);
+    let mut g2 = vec![0u64; plane];
+    for z in (0..nz).rev() {
+        let s = slice(z)?;
+        file.read_exact_at(&mut bytes, (z * plane * 2) as u64)
+            .map_err(io)?;
+        for i in 0..plane {
+            if s[i] != 1 {
+                next[i] = z as u32;
+            }
+            let down = u64::from(u16::from_le_bytes([bytes[2 * i], bytes[2 * i + 1]]));
+            let up = if next[i] == FAR {
+                u64::from(FAR)
+            } else {
+                u64::from(next[i] - z as u32)
+            };
+            let d = down.min(up);
+            g2[i] = d * d;
+        }
+        // Along y (columns), then along x (rows).
+        let mut t = vec![0u64; plane];
+        t.par_chunks_mut(ny).enumerate().for_each(|(x, col)| {
+            let f: Vec<u64> = (0..ny).map(|y| g2[y * nx + x]).collect();
+            lower_envelope(&f, col);
+        });
+        let rows: Vec<(u64, usize)> = (0..ny)
+            .into_par_iter()
+            .map(|y| {
+                let f: Vec<u64> = (0..nx).map(|x| t[x * ny + y]).collect();
+                let mut d = vec![0u64; nx];
+                lower_envelope(&f, &mut d);
+                let mut b = (0u64, 0usize);
+                for x in 0..nx {
+                    if s[y * nx + x] == 1 && d[x] > b.0 {
+                        b = (d[x], x);
+                    }
+                }
+                b
+            })
+            .collect();
+        // The first maximum over y (ascending) keeps the lowest y; across slices z
+        // descends, so an equal distance in a lower slice replaces the best.
+        let mut slice_best = (0u64, [0u64; 3]);
+        for (y, &(d, x)) in rows.iter().enumerate() {
+            if d > slice_best.0 {
+                slice_best = (d, [z as u64, y as u64, x as u64]);
+            }
+        }
+        if slice_best.0 > 0 && slice_best.0 >= best.0 {
+            best = slice_best;
+        }
+        progress.advance(1);
+    }
+    progress.finish();
+    drop(file);
+    let _ = std::fs::remove_file(scratch);
+    Ok((best.1, (best.0 as f64).sqrt()))
+}
+
+/// 1-D squared distance transform of sampled function `f` (Felzenszwalb-Huttenlocher):
+/// `out[q] = min_p f[p] + (q - p)^2`.
+fn lower_envelope(f: &[u64], out: &mut [u64]) {
+    let n = f.len();
+    let mut v = vec![0usize; n];
+    let mut zb = vec![0f64; n + 1];
+    let mut k = 0usize;
+    zb[0] = f64::NEG_INFINITY;
+    zb[1] = f64::INFINITY;
+    let inter = |p: usize, q: usize| -> f64 {
+        ((f[q] as f64 + (q * q) as f64) - (f[p] as f64 + (p * p) as f64))
+            / (2.0 * (q as f64 - p as f64))
+    };
+    for q in 1..n {
+        let mut s = inter(v[k], q);
+        while s <= zb[k] {
+            k -= 1;
+            s = inter(v[k], q);
+        }
+        k += 1;
+        v[k] = q;
+        zb[k] = s;
+        zb[k + 1] = f64::INFINITY;
+    }
+    k = 0;
+    for (q, o) in out.iter_mut().enumerate() {
+        while zb[k + 1] < q as f64 {
+            k += 1;
+        }
+        let d = q.abs_diff(v[k]) as u64;
+        *o = d * d + f[v[k]];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn envelope_matches_brute_force() {
+        let f: Vec<u64> = vec![9, 0, 100, 100, 4, 100, 100, 100, 0, 25];
+        let mut out = vec![0; f.len()];
+        lower_envelope(&f, &mut out);
+        for (q, &o) in out.iter().enumerate() {
+            let brute = (0..f.len())
+                .map(|p| f[p] + (q.abs_diff(p) as u64).pow(2))
+                .min()
+                .unwrap();
+            assert_eq!(o, brute, "q = {q}");
+        }
+    }
+}

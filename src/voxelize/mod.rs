@@ -1,0 +1,543 @@
+//! Voxelization: a shape -> the labelled grid of the run, with the shape center.
+//!
+//! Passes, each block by block within the memory budget (nothing holds a whole grid):
+//! 1. solid occupancy into an uncompressed scratch grid ([`scanline`] for surfaces,
+//!    [`from_volume`] for label volumes);
+//! 2. enclosed background (cavities) filled ([`components`] on the background);
+//! 3. pieces of the solid counted ([`components`] on the solid), and the Euler
+//!    characteristic ([`euler`]) gives the genus;
+//! 4. the center: the deepest voxel ([`center`]) or `--center`;
+//! 5. the labels written to `RUN/labels/0` ([`classify`]).
+
+mod center;
+mod classify;
+mod components;
+mod error;
+mod euler;
+mod from_volume;
+mod grid_fit;
+mod scanline;
+
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+pub use classify::CenterBall;
+pub use error::VoxelizeError;
+pub use grid_fit::{fit_bbox, fit_volume, DEFAULT_RESOLUTION, MAX_AXIS, MAX_VOXELS, MIN_PADDING};
+pub use scanline::InsideRule;
+
+use crate::grid::{BlockStore, Compression, GridSpec, MemBudget, MemStore, MmapStore};
+use crate::input::Shape;
+use crate::math::{Idx3, Vec3};
+use crate::progress::Progress;
+use crate::run::RunDir;
+
+/// Label values of `RUN/labels/0`.
+pub mod labels {
+    /// Outside the solid and its four exterior layers.
+    pub const EXTERIOR: u8 = 0;
+    /// Solid voxel with a non-solid 6-neighbour (phi = 1).
+    pub const BOUNDARY: u8 = 1;
+    /// Solid voxel whose 6 neighbours are solid (phi unknown).
+    pub const INTERIOR: u8 = 2;
+    /// Interior voxel of the center ball (phi = 0).
+    pub const CENTER: u8 = 3;
+    /// First exterior layer (phi = 1 + eps); layers 2..4 are 5..7 (phi = 1 + k eps).
+    pub const LAYER1: u8 = 4;
+    /// Names of the label values, for reports.
+    pub const NAMES: [&str; 8] = [
+        "exterior", "boundary", "interior", "center", "layer1", "layer2", "layer3", "layer4",
+    ];
+}
+
+/// Options of `harmap voxelize`. Stored verbatim in the run's metadata.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct VoxelizeOptions {
+    /// Voxels along the longest side of the shape's bounding box.
+    pub resolution: Option<u64>,
+    /// Voxel size in world units (instead of `resolution`).
+    pub spacing: Option<f64>,
+    /// Voxels added on every side (at least 5).
+    pub padding: u64,
+    /// Shape center in world coordinates (x, y, z); default: the deepest voxel.
+    pub center: Option<[f64; 3]>,
+    /// Radius (voxels) of the center ball where phi = 0.
+    pub center_radius: f64,
+    /// Go on when the solid is not one genus-0 piece.
+    pub allow_genus: bool,
+    /// Keep only the largest piece when the solid has several.
+    pub keep_largest: bool,
+    /// Block (chunk) edge in voxels.
+    pub chunk: u64,
+    /// Memory budget.
+    pub mem: MemBudget,
+    /// Unit of world coordinates (an OME-Zarr unit name), if known.
+    pub unit: Option<String>,
+    /// Where the intermediate solid grid lives.
+    pub scratch: Scratch,
+}
+
+/// Where intermediate grids live.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Scratch {
+    /// In memory when the grid (one byte a voxel) fits in half the budget, else on disk.
+    #[default]
+    Auto,
+    /// Always in memory.
+    Memory,
+    /// Always in a memory-mapped file, read and written block by block.
+    Disk,
+}
+
+impl Scratch {
+    /// Whether a grid of `voxels` bytes is kept in memory under `mem`.
+    #[must_use]
+    pub fn in_memory(self, voxels: u64, mem: MemBudget) -> bool {
+        match self {
+            Scratch::Auto => voxels <= mem.work_bytes() / 2,
+            Scratch::Memory => true,
+            Scratch::Disk => false,
+        }
+    }
+}
+
+impl Default for VoxelizeOptions {
+    fn default() -> Self {
+        Self {
+            resolution: None,
+            spacing: None,
+            padding: 6,
+            center: None,
+            center_radius: 2.0,
+            allow_genus: false,
+            keep_largest: false,
+            chunk: 64,
+            mem: MemBudget::default(),
+            unit: None,
+            scratch: Scratch::Auto,
+        }
+    }
+}
+
+/// What voxelization found. Stored in the run's metadata.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct VoxelizeReport {
+    /// The grid.
+    pub grid: GridSpec,
+    /// Voxels per label value 0..=7 (see [`labels`]).
+    pub counts: [u64; 8],
+    /// The center voxel `[z, y, x]`.
+    pub center_voxel: Idx3,
+    /// The center in world coordinates `(x, y, z)`.
+    pub center: [f64; 3],
+    /// Distance (voxels) from the center voxel to the nearest non-solid voxel.
+    pub center_depth: f64,
+    /// How inside was decided: "winding", "parity" or "volume".
+    pub inside_rule: String,
+    /// Euler characteristic of the final solid (6-connectivity).
+    pub euler_characteristic: i64,
+    /// 6-connected pieces of the final solid.
+    pub components: u64,
+    /// Genus (number of tunnels) of the final solid.
+    pub genus: i64,
+    /// Enclosed cavities filled, and their voxels.
+    pub cavities_filled: u64,
+    /// Voxels added by filling cavities.
+    pub cavity_voxels: u64,
+    /// Pieces removed by `keep_largest`, and their voxels.
+    pub pieces_removed: u64,
+    /// Voxels removed by `keep_largest`.
+    pub removed_voxels: u64,
+    /// Warnings given.
+    pub warnings: Vec<String>,
+    /// Seconds per pass.
+    pub timings: Vec<(String, f64)>,
+}
+
+/// Bytes a worker of the label pass holds (haloed block, distances, output, codec).
+fn label_worker_bytes(chunk: u64) -> u64 {
+    let h = chunk + 2 * classify::HALO as u64;
+    3 * h * h * h + 3 * chunk * chunk * chunk
+}
+
+/// Voxelize `shape` into the run directory `run` (which must be new): writes
+/// `labels/0` and returns the report. The caller records it in the run's attributes.
+pub fn voxelize(
+    shape: &Shape,
+    source_name: &str,
+    opts: &VoxelizeOptions,
+    run: &RunDir,
+    progress: &dyn Progress,
+) -> Result<VoxelizeReport, crate::Error> {
+    let mut timings = Vec::new();
+    let mut warnings = Vec::new();
+    let mut t = Instant::now();
+    let mut lap = |name: &str, t: &mut Instant| {
+        timings.push((name.to_owned(), t.elapsed().as_secs_f64()));
+        *t = Instant::now();
+    };
+    if opts.chunk < 8 || opts.chunk > 512 {
+        return Err(VoxelizeError::Options(format!(
+            "chunk edge {} must be between 8 and 512 voxels",
+            opts.chunk
+        ))
+        .into());
+    }
+    if !(opts.center_radius.is_finite() && opts.center_radius >= 0.0) {
+        return Err(VoxelizeError::Options(format!(
+            "--center-radius must be >= 0, got {}",
+            opts.center_radius
+        ))
+        .into());
+    }
+    let (spec, rule, shape_bytes) = match shape {
+        Shape::Mesh(mesh) => {
+            let topo = mesh.topology();
+            if !topo.is_closed() {
+                let odd = if topo.odd_edges > 0 {
+                    format!(
+                        " and {} more are used by an odd number of triangles",
+                        topo.odd_edges
+                    )
+                } else {
+                    String::new()
+                };
+                return Err(VoxelizeError::OpenSurface {
+                    path: source_name.to_owned(),
+                    boundary_edges: topo.boundary_edges,
+                    example: topo.example_open_edge.unwrap_or([0, 0]),
+                    odd,
+                }
+                .into());
+            }
+            let rule = if topo.is_oriented_closed() {
+                InsideRule::Winding
+            } else {
+                warnings.push(format!(
+                    "{source_name}: the triangles are not consistently oriented ({} edges are used twice in the same direction); inside is decided by crossing parity",
+                    topo.unbalanced_edges
+                ));
+                InsideRule::Parity
+            };
+            if topo.nonmanifold_edges > 0 {
+                warnings.push(format!(
+                    "{source_name}: {} edges are shared by more than two triangles (non-manifold); overlapping parts are taken as their union",
+                    topo.nonmanifold_edges
+                ));
+            }
+            if topo.degenerate > 0 {
+                warnings.push(format!(
+                    "{source_name}: {} degenerate triangles (repeated vertex) skipped",
+                    topo.degenerate
+                ));
+            }
+            let (lo, hi) = mesh
+                .bbox()
+                .ok_or_else(|| VoxelizeError::Options(format!("{source_name}: no triangles")))?;
+            let bytes = mesh.vertices.len() as u64 * 24 + mesh.triangles.len() as u64 * 160;
+            (fit_bbox(lo, hi, opts)?, Some(rule), bytes)
+        }
+        Shape::Volume(v) => (fit_volume(v.shape(), opts)?, None, 0),
+    };
+    let threads = rayon::current_num_threads();
+    let c = opts.chunk;
+    let plane = spec.shape[1] * spec.shape[2];
+    let w_solid = opts.mem.workers(
+        "the inside test of one block column",
+        shape_bytes,
+        c * c * spec.shape[2] * 2 + c * c * 16,
+        threads,
+    )?;
+    let w_ccl = opts.mem.workers(
+        "component labelling of one block",
+        0,
+        6 * c * c * c,
+        threads,
+    )?;
+    let w_label = opts
+        .mem
+        .workers("labelling one block", 0, label_worker_bytes(c), threads)?;
+    opts.mem
+        .workers("the distance transform (a few slices)", 0, 40 * plane, 1)?;
+    for w in [w_solid, w_ccl, w_label] {
+        if w < threads {
+            progress.info(&format!(
+                "memory budget {} allows {w} of {threads} workers in some passes",
+                opts.mem
+            ));
+        }
+    }
+
+    let scratch_dir = run.root().join(".scratch");
+    std::fs::create_dir_all(&scratch_dir).map_err(|e| crate::grid::GridError::Io {
+        path: scratch_dir.clone(),
+        source: e,
+    })?;
+    // The solid occupancy lives in memory when it fits in half the budget, else in an
+    // uncompressed memory-mapped scratch file; both give the same labels.
+    let in_memory = opts.scratch.in_memory(spec.num_voxels(), opts.mem);
+    let solid: Box<dyn BlockStore<u8>> = if in_memory {
+        Box::new(MemStore::<u8>::new(spec.clone(), 0))
+    } else {
+        Box::new(MmapStore::<u8>::create(
+            &scratch_dir.join("solid.u8"),
+            spec.clone(),
+        )?)
+    };
+    let solid = &*solid;
+
+    // 1. Solid occupancy.
+    match (shape, rule) {
+        (Shape::Mesh(mesh), Some(rule)) => {
+            let unclosed = scanline::mesh_solid(mesh, rule, solid, w_solid, progress)?;
+            if unclosed > 0 {
+                warnings.push(format!(
+                    "{source_name}: {unclosed} rows of voxels crossed the surface an unbalanced number of times (coincident or self-intersecting faces); check the labels near them"
+                ));
+            }
+        }
+        (Shape::Volume(v), _) => {
+            from_volume::volume_solid(v, opts.padding, solid, w_solid, progress)?;
+        }
+        (Shape::Mesh(_), None) => unreachable!("meshes always get a rule"),
+    }
+    lap("solid", &mut t);
+
+    // 2. Fill enclosed cavities: background components that do not reach the grid faces.
+    let bg = components::find(solid, |v| v != 1, w_ccl, "voxelize: cavities", progress)?;
+    let cavities: Vec<u32> = (0..bg.sizes.len() as u32)
+        .filter(|&c| !bg.touches_border[c as usize])
+        .collect();
+    let cavity_voxels: u64 = cavities.iter().map(|&c| bg.sizes[c as usize]).sum();
+    if !cavities.is_empty() {
+        let outside = &bg.touches_border;
+        components::rewrite(
+            solid,
+            &bg,
+            |v| v != 1,
+            |c, v| if outside[c as usize] { v } else { 1 },
+            w_ccl,
+        )?;
+    }
+    drop(bg);
+    lap("cavities", &mut t);
+
+    // 3. Pieces and genus.
+    let mut pieces = components::find(solid, |v| v == 1, w_ccl, "voxelize: components", progress)?;
+    if pieces.sizes.is_empty() {
+        return Err(VoxelizeError::Empty {
+            shape: spec.shape,
+            spacing: spec.spacing,
+        }
+        .into());
+    }
+    let (mut pieces_removed, mut removed_voxels) = (0, 0);
+    if pieces.sizes.len() > 1 && opts.keep_largest {
+        let largest = (0..pieces.sizes.len())
+            .max_by_key(|&i| (pieces.sizes[i], std::cmp::Reverse(i)))
+            .expect("non-empty") as u32;
+        pieces_removed = pieces.sizes.len() as u64 - 1;
+        removed_voxels = pieces.sizes.iter().sum::<u64>() - pieces.sizes[largest as usize];
+        components::rewrite(
+            solid,
+            &pieces,
+            |v| v == 1,
+            |c, v| if c == largest { v } else { 0 },
+            w_ccl,
+        )?;
+        warnings.push(format!(
+            "kept the largest of {} pieces; removed {removed_voxels} voxels",
+            pieces_removed + 1
+        ));
+        pieces = components::find(solid, |v| v == 1, w_ccl, "voxelize: components", progress)?;
+    }
+    let ncomp = pieces.sizes.len() as u64;
+    let chi = euler::euler_characteristic(solid, w_ccl)?;
+    let genus = ncomp as i64 - chi;
+    lap("topology", &mut t);
+    if (ncomp > 1 || genus != 0) && !opts.allow_genus {
+        let mut sizes = pieces.sizes.clone();
+        sizes.sort_unstable_by(|a, b| b.cmp(a));
+        let what = if ncomp > 1 {
+            format!(
+                "{ncomp} separate pieces (voxels: {}{})",
+                sizes
+                    .iter()
+                    .take(5)
+                    .map(u64::to_string)
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                if ncomp > 5 { ", ..." } else { "" }
+            )
+        } else {
+            format!("one piece of genus {genus} ({genus} tunnel(s) or handle(s); Euler characteristic {chi})")
+        };
+        let advice = if ncomp > 1 {
+            "use --keep-largest to keep the largest piece, a coarser --resolution to join them, or --allow-genus to go on anyway"
+        } else {
+            "repair the shape, try a coarser --resolution (it can close thin tunnels), or pass --allow-genus to go on anyway (streamlines around a handle do not map one-to-one)"
+        };
+        return Err(VoxelizeError::Topology(format!(
+            "{source_name}: the voxel solid is not a single genus-0 piece: found {what}; harmap maps genus-0 solids; {advice}"
+        ))
+        .into());
+    }
+    if ncomp > 1 || genus != 0 {
+        warnings.push(format!(
+            "the solid has {ncomp} piece(s) and genus {genus}; going on because of --allow-genus"
+        ));
+    }
+    drop(pieces);
+
+    // 4. Center.
+    let (center_voxel, depth) = match opts.center {
+        None => center::deepest_voxel(solid, &scratch_dir.join("zdist.u16"), progress)?,
+        Some(p) => {
+            let p = Vec3::from_array(p);
+            let v = spec.nearest_voxel(p).ok_or_else(|| {
+                VoxelizeError::Center(format!(
+                    "--center {},{},{} lies outside the grid; give a point inside the shape",
+                    p.x, p.y, p.z
+                ))
+            })?;
+            (v, f64::NAN)
+        }
+    };
+    check_center_ball(
+        solid,
+        center_voxel,
+        opts.center_radius,
+        opts.center.is_some(),
+    )?;
+    let depth = if depth.is_nan() {
+        local_depth(solid, center_voxel)?
+    } else {
+        depth
+    };
+    lap("center", &mut t);
+
+    // 5. Labels.
+    let labels = run.create_image::<u8>("labels", &spec, 0, Compression::Zstd(3))?;
+    let ball = CenterBall {
+        voxel: center_voxel,
+        radius: opts.center_radius,
+    };
+    let counts = classify::classify(solid, &labels, ball, w_label, progress)?;
+    lap("labels", &mut t);
+    let _ = std::fs::remove_dir_all(&scratch_dir);
+
+    Ok(VoxelizeReport {
+        center: spec.voxel_center(center_voxel).to_array(),
+        grid: spec,
+        counts,
+        center_voxel,
+        center_depth: depth,
+        inside_rule: rule.map_or("volume".into(), |r| {
+            serde_json::to_value(r)
+                .expect("enum")
+                .as_str()
+                .unwrap_or("")
+                .to_owned()
+        }),
+        euler_characteristic: chi,
+        components: ncomp,
+        genus,
+        cavities_filled: cavities.len() as u64,
+        cavity_voxels,
+        pieces_removed,
+        removed_voxels,
+        warnings,
+        timings,
+    })
+}
+
+/// Check that every voxel of the center ball is solid and not on the boundary.
+fn check_center_ball(
+    solid: &dyn BlockStore<u8>,
+    c: Idx3,
+    radius: f64,
+    user: bool,
+) -> Result<(), crate::Error> {
+    let r = radius.ceil() as i64 + 1;
+    let origin = c.map(|v| v as i64 - r);
+    let n = (2 * r + 1) as usize;
+    let region = solid.read_region(origin, [n; 3], 0)?;
+    let ball = CenterBall { voxel: c, radius };
+    let at = |g: [i64; 3]| region.at_global(g);
+    if at(c.map(|v| v as i64)) != 1 {
+        let spec = solid.spec();
+        let p = spec.voxel_center(c);
+        return Err(VoxelizeError::Center(format!(
+            "--center {},{},{} is not inside the solid (voxel [{}, {}, {}] is outside); give a point well inside the shape",
+            p.x, p.y, p.z, c[0], c[1], c[2]
+        ))
+        .into());
+    }
+    for dz in -r + 1..r {
+        for dy in -r + 1..r {
+            for dx in -r + 1..r {
+                let g = [c[0] as i64 + dz, c[1] as i64 + dy, c[2] as i64 + dx];
+                if !ball.contains(g) {
+                    continue;
+                }
+                let nbrs = [
+                    [0, 0, 0],
+                    [1, 0, 0],
+                    [-1, 0, 0],
+                    [0, 1, 0],
+                    [0, -1, 0],
+                    [0, 0, 1],
+                    [0, 0, -1],
+                ];
+                if nbrs
+                    .iter()
+                    .any(|d| at([g[0] + d[0], g[1] + d[1], g[2] + d[2]]) != 1)
+                {
+                    let hint = if user {
+                        "choose a center deeper inside or"
+                    } else {
+                        "the solid is too thin here:"
+                    };
+                    return Err(VoxelizeError::Center(format!(
+                        "the center ball (radius {radius} voxels around voxel [{}, {}, {}]) reaches the boundary at voxel [{}, {}, {}]; {hint} use a smaller --center-radius or a finer --resolution",
+                        c[0], c[1], c[2], g[0], g[1], g[2]
+                    ))
+                    .into());
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Distance (voxels) from `c` to the nearest non-solid voxel, searched in growing cubes
+/// (used for a user-given center, where no distance transform ran).
+fn local_depth(solid: &dyn BlockStore<u8>, c: Idx3) -> Result<f64, crate::Error> {
+    let mut r: i64 = 4;
+    loop {
+        let origin = c.map(|v| v as i64 - r);
+        let n = (2 * r + 1) as usize;
+        let region = solid.read_region(origin, [n; 3], 0)?;
+        let mut best = f64::INFINITY;
+        for z in 0..n {
+            for y in 0..n {
+                for x in 0..n {
+                    if region.data[(z * n + y) * n + x] != 1 {
+                        let d = [z, y, x]
+                            .iter()
+                            .map(|&q| (q as f64 - r as f64).powi(2))
+                            .sum::<f64>()
+                            .sqrt();
+                        best = best.min(d);
+                    }
+                }
+            }
+        }
+        if best <= r as f64 {
+            return Ok(best);
+        }
+        r *= 2;
+    }
+}

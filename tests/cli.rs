@@ -1,0 +1,237 @@
+//! The `harmap` command: exit codes and messages for every kind of bad input, and the
+//! rule that a failed run leaves no run directory behind.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use harmap::math::Vec3;
+
+use crate::common::{sphere, torus, write_obj};
+
+fn harmap(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_harmap"))
+        .args(args)
+        .output()
+        .expect("the harmap binary runs")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Run `harmap voxelize INPUT -o RUN extra...` and expect exit code 2 with every piece of
+/// `expect` in the message, and no run directory (nor a staging one) left behind.
+fn refused(input: &Path, extra: &[&str], expect: &[&str]) {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("r.harmap");
+    let mut args = vec![
+        "voxelize",
+        input.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let o = harmap(&args);
+    let err = stderr(&o);
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "exit code for {args:?}; stderr:\n{err}"
+    );
+    for e in expect {
+        assert!(err.contains(e), "message for {args:?} lacks {e:?}:\n{err}");
+    }
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(
+        !out.exists() && !harmap::run::staging_path(&out).exists(),
+        "a failed run left a directory"
+    );
+}
+
+fn file(dir: &Path, name: &str, content: &[u8]) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, content).unwrap();
+    p
+}
+
+fn cube_obj() -> String {
+    let mut s = String::new();
+    for z in [0, 1] {
+        for y in [0, 1] {
+            for x in [0, 1] {
+                let _ = writeln!(s, "v {x} {y} {z}");
+            }
+        }
+    }
+    // Outward-wound quads of the unit cube, as OBJ polygons.
+    s.push_str("f 1 3 4 2\nf 5 6 8 7\nf 1 2 6 5\nf 3 7 8 4\nf 1 5 7 3\nf 2 4 8 6\n");
+    s
+}
+
+#[test]
+fn voxelize_and_info_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let cube = file(dir.path(), "cube.obj", cube_obj().as_bytes());
+    let out = dir.path().join("cube.harmap");
+    let o = harmap(&[
+        "voxelize",
+        cube.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--resolution",
+        "16",
+        "--center-radius",
+        "1",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = harmap(&["info", out.to_str().unwrap(), "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(
+        v["harmap"]["grid"]["shape"],
+        serde_json::json!([28, 28, 28])
+    );
+    assert_eq!(v["summary"]["voxelize"]["genus"], 0);
+    assert_eq!(v["summary"]["voxelize"]["labels"]["center"], 7);
+    assert_eq!(
+        v["summary"]["voxelize"]["labels"]["interior"]
+            .as_u64()
+            .unwrap()
+            + 7
+            + v["summary"]["voxelize"]["labels"]["boundary"]
+                .as_u64()
+                .unwrap(),
+        16 * 16 * 16
+    );
+    let text = harmap(&["info", out.to_str().unwrap()]);
+    let t = String::from_utf8_lossy(&text.stdout);
+    assert!(t.contains("genus 0") && t.contains("sha256"), "{t}");
+    // An existing run is not overwritten without --force.
+    let o = harmap(&[
+        "voxelize",
+        cube.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--resolution",
+        "16",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("already exists"), "{}", stderr(&o));
+}
+
+#[test]
+fn bad_files_are_refused_with_the_file_and_line() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    refused(&dir.join("missing.obj"), &[], &["missing.obj"]);
+    refused(
+        &file(dir, "shape.xyz3", b"1 2 3"),
+        &[],
+        &["shape.xyz3", "unknown input format"],
+    );
+    refused(&file(dir, "empty.obj", b""), &[], &["empty.obj"]);
+    refused(
+        &file(
+            dir,
+            "nan.obj",
+            b"v 0 0 0\nv 1 0 0\nv 0 nan 0\nv 0 0 1\nf 1 2 3\n",
+        ),
+        &[],
+        &["nan.obj:3"],
+    );
+    refused(
+        &file(
+            dir,
+            "inf.obj",
+            b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 inf\nf 1 2 3\n",
+        ),
+        &[],
+        &["inf.obj:4"],
+    );
+    refused(
+        &file(
+            dir,
+            "range.obj",
+            b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n",
+        ),
+        &[],
+        &["range.obj:5"],
+    );
+    refused(
+        &file(dir, "text.obj", b"v 0 0 0\nv 1 zero 0\n"),
+        &[],
+        &["text.obj:2"],
+    );
+    // Binary STL whose header announces more triangles than the file holds.
+    let mut stl = vec![0u8; 80];
+    stl.extend_from_slice(&12u32.to_le_bytes());
+    stl.extend_from_slice(&[0u8; 100]);
+    refused(&file(dir, "cut.stl", &stl), &[], &["cut.stl", "truncated"]);
+    // Binary PLY cut short.
+    let mut ply = b"ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nelement face 4\nproperty list uchar int vertex_indices\nend_header\n".to_vec();
+    ply.extend_from_slice(&[0u8; 20]);
+    refused(&file(dir, "cut.ply", &ply), &[], &["cut.ply"]);
+    // TetGen: the header announces 5 nodes, the file has 4.
+    file(
+        dir,
+        "t.node",
+        b"5 3 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n",
+    );
+    file(dir, "t.ele", b"1 4 0\n1 1 2 3 4\n");
+    refused(&dir.join("t.node"), &[], &["t.node"]);
+    // A gzip file that is not gzip.
+    refused(
+        &file(dir, "bad.obj.gz", b"not gzip at all"),
+        &[],
+        &["bad.obj.gz", "gunzip"],
+    );
+}
+
+#[test]
+fn bad_options_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let cube = file(d.path(), "cube.obj", cube_obj().as_bytes());
+    refused(
+        &cube,
+        &["--resolution", "0"],
+        &["--resolution must be at least 1"],
+    );
+    refused(&cube, &["--resolution", "100000"], &["largest grid"]);
+    refused(
+        &cube,
+        &["--resolution", "16", "--mem", "1MiB"],
+        &["memory budget 1MiB is too small", "--mem"],
+    );
+    refused(
+        &cube,
+        &["--resolution", "16", "--padding", "2"],
+        &["--padding 2 is too small"],
+    );
+    refused(
+        &cube,
+        &["--resolution", "16", "--center", "5,5,5"],
+        &["--center"],
+    );
+    refused(&cube, &["--mem", "lots"], &["lots"]);
+    // The usage errors of clap are exit code 2 too.
+    let o = harmap(&["voxelize"]);
+    assert_eq!(o.status.code(), Some(2));
+}
+
+#[test]
+fn shapes_harmap_cannot_map_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let t = d.path().join("torus.obj");
+    write_obj(&t, &torus(1.0, 0.4, 48, 24));
+    refused(
+        &t,
+        &["--resolution", "32"],
+        &["torus.obj", "genus 1", "--allow-genus"],
+    );
+    let mut open = sphere(Vec3::ZERO, 1.0, 12, 24);
+    open.triangles.pop();
+    let o = d.path().join("open.obj");
+    write_obj(&o, &open);
+    refused(&o, &["--resolution", "16"], &["open.obj", "not closed"]);
+}
