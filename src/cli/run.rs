@@ -13,7 +13,7 @@ use super::Global;
 
 /// Run the pipeline on a shape: today, voxelization (labels and center).
 ///
-/// With no INPUT, runs on the built-in five-armed starfish. Stages already done in RUN
+/// With no INPUT, runs on the built-in five-armed starfish, centered at its middle. Stages already done in RUN
 /// are skipped, so a run that was stopped is finished by giving the same command again;
 /// --force starts over.
 ///
@@ -48,7 +48,12 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
                 });
         PathBuf::from(format!("{stem}.harmap"))
     });
-    let (opts, iopts): (_, InputOptions) = a.opts.options()?;
+    let (mut opts, iopts): (_, InputOptions) = a.opts.options()?;
+    if a.input.is_none() && opts.center.is_none() {
+        // The starfish is symmetric about the origin: its middle is the natural center
+        // (the deepest voxel lies off-middle, toward an arm's root).
+        opts.center = Some([0.0, 0.0, 0.0]);
+    }
     let bars = Bars::new(g);
     let done = !a.force
         && RunDir::open(&out)

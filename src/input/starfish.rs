@@ -8,25 +8,26 @@ use std::f64::consts::PI;
 use super::TriMesh;
 use crate::math::Vec3;
 
-/// A five-armed starfish about 2 units across and 0.5 thick, centered at the origin.
+/// A five-armed starfish about 2 units across and 0.75 thick, centered at the origin.
 ///
 /// A sphere whose radius in the equatorial plane swells into five arms
-/// (`r(psi) = 0.35 + 0.65 * max(cos(5 psi / 2)^2 ...)`) and which is flattened along z
-/// (more at the tips than at the body). `rings` and `segments` set the tessellation.
+/// (`r = 0.42 + 0.58 a(psi)`, `a` = 1 on an arm's axis, 0 between arms) and which is flattened along z
+/// (more at the tips than at the domed body). `rings` and `segments` set the tessellation.
 #[must_use]
 pub fn starfish(rings: usize, segments: usize) -> TriMesh {
     let arms = 5.0;
     let mut vertices = Vec::with_capacity(rings * segments + 2);
-    vertices.push(Vec3::new(0.0, 0.0, 0.28));
+    vertices.push(Vec3::new(0.0, 0.0, 0.28 * 1.35));
     for r in 1..rings {
         let theta = PI * r as f64 / rings as f64;
         for s in 0..segments {
             let psi = 2.0 * PI * s as f64 / segments as f64;
             // Arm profile: 1 on an arm's axis, 0 between arms, with rounded tips.
             let arm = (0.5 * (1.0 + (arms * psi).cos())).powf(2.5);
-            let radial = 0.32 + 0.68 * arm;
-            let thickness = 0.28 - 0.16 * arm;
+            let radial = 0.42 + 0.58 * arm;
             let (st, ct) = theta.sin_cos();
+            // Thinner arms than body, and a domed body.
+            let thickness = (0.28 - 0.16 * arm) * (1.0 + 0.35 * ct * ct);
             vertices.push(Vec3::new(
                 radial * st * psi.cos(),
                 radial * st * psi.sin(),
@@ -34,7 +35,7 @@ pub fn starfish(rings: usize, segments: usize) -> TriMesh {
             ));
         }
     }
-    vertices.push(Vec3::new(0.0, 0.0, -0.28));
+    vertices.push(Vec3::new(0.0, 0.0, -0.28 * 1.35));
     let south = (vertices.len() - 1) as u32;
     let ring = |r: usize, s: usize| (1 + (r - 1) * segments + s % segments) as u32;
     let mut triangles = Vec::with_capacity(2 * rings * segments);

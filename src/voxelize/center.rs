@@ -65,6 +65,7 @@ pub fn deepest_voxel(
     let mut next = vec![FAR; plane];
     let mut best: (u64, Idx3) = (0, [0, 0, 0]);
     let mut g2 = vec![0u64; plane];
+    let mut t = vec![0u64; plane];
     for z in (0..nz).rev() {
         let s = slice(z)?;
         file.read_exact_at(&mut bytes, (z * plane * 2) as u64)
@@ -82,16 +83,37 @@ pub fn deepest_voxel(
             let d = down.min(up);
             g2[i] = d * d;
         }
+        // The distance of a voxel is at most its distance along z, so a slice whose
+        // solid voxels all have g^2 below the best so far cannot hold the deepest voxel
+        // (equal values may: ties go to the lower z, which comes later).
+        let max_g2 = g2
+            .iter()
+            .zip(&s)
+            .filter(|(_, &v)| v == 1)
+            .map(|(&g, _)| g)
+            .max()
+            .unwrap_or(0);
+        if max_g2 == 0 || max_g2 < best.0 {
+            progress.advance(1);
+            continue;
+        }
         // Along y (columns), then along x (rows).
-        let mut t = vec![0u64; plane];
         t.par_chunks_mut(ny).enumerate().for_each(|(x, col)| {
             let f: Vec<u64> = (0..ny).map(|y| g2[y * nx + x]).collect();
             lower_envelope(&f, col);
         });
+        let floor = best.0;
         let rows: Vec<(u64, usize)> = (0..ny)
             .into_par_iter()
             .map(|y| {
                 let f: Vec<u64> = (0..nx).map(|x| t[x * ny + y]).collect();
+                // Likewise the in-plane column distance bounds the row's distances.
+                if (0..nx)
+                    .filter(|&x| s[y * nx + x] == 1)
+                    .all(|x| f[x] < floor)
+                {
+                    return (0, 0);
+                }
                 let mut d = vec![0u64; nx];
                 lower_envelope(&f, &mut d);
                 let mut b = (0u64, 0usize);

@@ -36,6 +36,14 @@ impl CenterBall {
     }
 }
 
+/// Whether the center ball may reach the block at `start` of extent `s`.
+fn ball_near(ball: &CenterBall, start: [u64; 3], s: [usize; 3]) -> bool {
+    (0..3).all(|a| {
+        let c = ball.voxel[a] as f64;
+        c + ball.radius >= start[a] as f64 && c - ball.radius <= (start[a] as usize + s[a]) as f64
+    })
+}
+
 /// Write the labels of every block of `solid` into `labels`; returns the count of each
 /// label value 0..=7.
 pub fn classify(
@@ -52,6 +60,20 @@ pub fn classify(
         let r = solid.read_block_halo(b, HALO, 0)?;
         let [hz, hy, hx] = r.shape;
         let s = spec.block_shape(b).map(|c| c as usize);
+        let n = s[0] * s[1] * s[2];
+        // Far from the solid every voxel is exterior; deep inside, interior (but for the
+        // center ball, which the general path handles).
+        let all_solid = r.data.iter().all(|&v| v == 1);
+        if r.data.iter().all(|&v| v != 1)
+            || (all_solid && !ball_near(&ball, spec.block_start(b), s))
+        {
+            let label = if all_solid { INTERIOR } else { EXTERIOR };
+            labels.write_block(b, &vec![label; n])?;
+            let mut counts = [0u64; 8];
+            counts[label as usize] = n as u64;
+            progress.advance(1);
+            return Ok(counts);
+        }
         // L1 distance to the solid, up to HALO, over the haloed box.
         let mut dist: Vec<u8> = r
             .data
