@@ -69,6 +69,11 @@ pub fn voxelize_new_run(
         progress.warn(w);
     }
     let seconds = t0.elapsed().as_secs_f64();
+    // The grid is recorded once, at harmap.grid.
+    let mut result = serde_json::to_value(&report).expect("report");
+    if let Some(o) = result.as_object_mut() {
+        o.remove("grid");
+    }
     staging.run().update_attrs(|a| {
         a.insert(
             "grid".into(),
@@ -82,7 +87,7 @@ pub fn voxelize_new_run(
             "status": "done",
             "seconds": seconds,
             "options": opts,
-            "result": report,
+            "result": result,
         });
     })?;
     let run = staging.commit()?;

@@ -2,6 +2,6 @@
 
 mod cli;
 mod common;
-
+mod interop;
 mod meshes;
 mod voxelize;

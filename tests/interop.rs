@@ -1,0 +1,86 @@
+//! Interoperability: a run directory written by `harmap voxelize` opens in zarr-python 3,
+//! ome-zarr's Reader and ome-zarr-models (`tests/interop/check_run.py`).
+//!
+//! Needs a Python with `zarr>=3,<4 numpy ome-zarr ome-zarr-models`, named by the
+//! environment variable `HARMAP_PYTHON` (`.ci/run` sets it up). Without it the test is
+//! skipped with a note, except under `CI=true`, where it fails.
+//!
+//! Writes its own input (a unit cube), so it needs no shared test data.
+
+use std::path::Path;
+use std::process::Command;
+
+/// The unit cube as six outward-wound quads.
+const CUBE_OBJ: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nv 0 0 1\nv 1 0 1\nv 0 1 1\nv 1 1 1\n\
+f 1 3 4 2\nf 5 6 8 7\nf 1 2 6 5\nf 3 7 8 4\nf 1 5 7 3\nf 2 4 8 6\n";
+
+/// The Python to run the check with, or `None` to skip (panics under CI).
+fn python() -> Option<String> {
+    match std::env::var("HARMAP_PYTHON") {
+        Ok(p) if !p.trim().is_empty() => Some(p),
+        _ => {
+            assert!(
+                std::env::var("CI").as_deref() != Ok("true"),
+                "CI=true but HARMAP_PYTHON is not set: the interop check must run in CI \
+                 (.ci/run creates .venv with zarr, ome-zarr, ome-zarr-models and sets it)"
+            );
+            eprintln!(
+                "note: skipping the zarr-python / ome-zarr interop check: set HARMAP_PYTHON to a Python \
+                 with `zarr>=3,<4 numpy ome-zarr ome-zarr-models` (or run .ci/run)"
+            );
+            None
+        }
+    }
+}
+
+fn check_with_python(python: &str, run: &Path) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/interop/check_run.py");
+    let o = Command::new(python)
+        .arg(&script)
+        .arg(run)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot start HARMAP_PYTHON={python}: {e}"));
+    let out = String::from_utf8_lossy(&o.stdout);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        o.status.success(),
+        "{} {} {} exited with {}\n--- stdout\n{out}--- stderr\n{err}",
+        python,
+        script.display(),
+        run.display(),
+        o.status
+    );
+    assert!(
+        out.starts_with("ok: "),
+        "unexpected output of check_run.py:\n{out}{err}"
+    );
+    eprintln!("{out}{err}");
+}
+
+#[test]
+fn run_directory_opens_in_zarr_python_and_ome_zarr() {
+    let Some(python) = python() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("cube.obj");
+    std::fs::write(&obj, CUBE_OBJ).unwrap();
+    let run = dir.path().join("cube.harmap");
+    let o = Command::new(env!("CARGO_BIN_EXE_harmap"))
+        .args([
+            "voxelize",
+            obj.to_str().unwrap(),
+            "-o",
+            run.to_str().unwrap(),
+            "--resolution",
+            "24",
+            "--progress",
+            "never",
+        ])
+        .output()
+        .expect("the harmap binary runs");
+    assert!(
+        o.status.success(),
+        "harmap voxelize failed:\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    check_with_python(&python, &run);
+}
