@@ -25,7 +25,7 @@ fn bench(c: &mut Criterion) {
     let dir = tempfile::tempdir().expect("temp dir");
     let mut g = c.benchmark_group("voxelize");
     g.sample_size(10);
-    for n in [64u64, 128, 256] {
+    for n in [256u64, 512] {
         let opts = VoxelizeOptions {
             resolution: Some(n),
             ..VoxelizeOptions::default()

@@ -59,29 +59,18 @@ impl<T: Scalar> BlockStore<T> for MemStore<T> {
         // Copy only the overlapping rows of each block, under its read lock.
         let spec = &self.spec;
         let mut out = Block::filled(origin, shape, outside);
-        let c = spec.chunk.map(|c| c as i64);
-        let lo = [0, 1, 2].map(|a| origin[a].max(0));
-        let hi = [0, 1, 2].map(|a| (origin[a] + shape[a] as i64).min(spec.shape[a] as i64));
-        if (0..3).any(|a| lo[a] >= hi[a]) {
-            return Ok(out);
-        }
-        for bz in lo[0] / c[0]..=(hi[0] - 1) / c[0] {
-            for by in lo[1] / c[1]..=(hi[1] - 1) / c[1] {
-                for bx in lo[2] / c[2]..=(hi[2] - 1) / c[2] {
-                    let b = [bz as u64, by as u64, bx as u64];
-                    let slot = self.blocks[spec.block_linear(b) as usize]
-                        .read()
-                        .expect("lock");
-                    let s = spec.block_start(b).map(|v| v as i64);
-                    match &*slot {
-                        Some(v) => copy_overlap(v, s, to_usize(spec.block_shape(b)), &mut out),
-                        None if self.fill != outside => {
-                            let f = vec![self.fill; volume(spec.block_shape(b)) as usize];
-                            copy_overlap(&f, s, to_usize(spec.block_shape(b)), &mut out);
-                        }
-                        None => {}
-                    }
+        for b in spec.blocks_overlapping(origin, shape) {
+            let slot = self.blocks[spec.block_linear(b) as usize]
+                .read()
+                .expect("lock");
+            let s = spec.block_start(b).map(|v| v as i64);
+            match &*slot {
+                Some(v) => copy_overlap(v, s, to_usize(spec.block_shape(b)), &mut out),
+                None if self.fill != outside => {
+                    let f = vec![self.fill; volume(spec.block_shape(b)) as usize];
+                    copy_overlap(&f, s, to_usize(spec.block_shape(b)), &mut out);
                 }
+                None => {}
             }
         }
         Ok(out)

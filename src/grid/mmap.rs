@@ -78,6 +78,14 @@ impl<T: Scalar> MmapStore<T> {
         unsafe { self.window_opts(b).map(&self.file) }.map_err(|e| self.io(e))
     }
 
+    /// Map bytes `[first, first + len)` of block `b` read-only for one access.
+    fn window_range(&self, b: Idx3, first: usize, len: usize) -> Result<memmap2::Mmap, GridError> {
+        let offset = self.spec.block_linear(b) * self.chunk_bytes() + first as u64;
+        // SAFETY: as in `window`.
+        unsafe { MmapOptions::new().offset(offset).len(len).map(&self.file) }
+            .map_err(|e| self.io(e))
+    }
+
     /// Map block `b` writable for the duration of one access.
     fn window_mut(&self, b: Idx3) -> Result<memmap2::MmapMut, GridError> {
         // SAFETY: as in `window`; only one worker writes a block at a time.
@@ -135,45 +143,38 @@ impl<T: Scalar> BlockStore<T> for MmapStore<T> {
         shape: [usize; 3],
         outside: T,
     ) -> Result<Block<T>, GridError> {
-        // Read only the rows that overlap, straight from each block's window.
+        // Map only the byte range of each block that holds the overlapping rows.
         let spec = &self.spec;
         let mut out = Block::filled(origin, shape, outside);
         let c = spec.chunk.map(|c| c as i64);
-        let lo = [0, 1, 2].map(|a| origin[a].max(0));
-        let hi = [0, 1, 2].map(|a| (origin[a] + shape[a] as i64).min(spec.shape[a] as i64));
-        if (0..3).any(|a| lo[a] >= hi[a]) {
-            return Ok(out);
-        }
-        for bz in lo[0] / c[0]..=(hi[0] - 1) / c[0] {
-            for by in lo[1] / c[1]..=(hi[1] - 1) / c[1] {
-                for bx in lo[2] / c[2]..=(hi[2] - 1) / c[2] {
-                    let b = [bz as u64, by as u64, bx as u64];
-                    let map = self.window(b)?;
-                    let bs = [bz * c[0], by * c[1], bx * c[2]];
-                    let z0 = lo[0].max(bs[0]);
-                    let z1 = hi[0].min(bs[0] + c[0]);
-                    let y0 = lo[1].max(bs[1]);
-                    let y1 = hi[1].min(bs[1] + c[1]);
-                    let x0 = lo[2].max(bs[2]);
-                    let x1 = hi[2].min(bs[2] + c[2]);
-                    let n = (x1 - x0) as usize;
-                    for z in z0..z1 {
-                        for y in y0..y1 {
-                            let o = ((((z - bs[0]) * c[1] + (y - bs[1])) * c[2]) + (x0 - bs[2]))
-                                as usize
-                                * T::SIZE;
-                            let d = out.offset(
-                                (z - origin[0]) as usize,
-                                (y - origin[1]) as usize,
-                                (x0 - origin[2]) as usize,
-                            );
-                            for (dst, src) in out.data[d..d + n]
-                                .iter_mut()
-                                .zip(map[o..o + n * T::SIZE].chunks_exact(T::SIZE))
-                            {
-                                *dst = T::read_le(src);
-                            }
-                        }
+        for b in spec.blocks_overlapping(origin, shape) {
+            let bs = spec.block_start(b).map(|v| v as i64);
+            let lo = [0, 1, 2].map(|a| origin[a].max(bs[a]));
+            let hi = [0, 1, 2].map(|a| {
+                (origin[a] + shape[a] as i64)
+                    .min(bs[a] + c[a])
+                    .min(spec.shape[a] as i64)
+            });
+            let at = |z: i64, y: i64, x: i64| {
+                ((((z - bs[0]) * c[1] + (y - bs[1])) * c[2]) + (x - bs[2])) as usize * T::SIZE
+            };
+            let first = at(lo[0], lo[1], lo[2]);
+            let end = at(hi[0] - 1, hi[1] - 1, hi[2]);
+            let map = self.window_range(b, first, end - first)?;
+            let n = (hi[2] - lo[2]) as usize;
+            for z in lo[0]..hi[0] {
+                for y in lo[1]..hi[1] {
+                    let o = at(z, y, lo[2]) - first;
+                    let d = out.offset(
+                        (z - origin[0]) as usize,
+                        (y - origin[1]) as usize,
+                        (lo[2] - origin[2]) as usize,
+                    );
+                    for (dst, src) in out.data[d..d + n]
+                        .iter_mut()
+                        .zip(map[o..o + n * T::SIZE].chunks_exact(T::SIZE))
+                    {
+                        *dst = T::read_le(src);
                     }
                 }
             }

@@ -107,6 +107,21 @@ impl GridSpec {
         }
     }
 
+    /// The blocks that hold some voxel of the box `[origin, origin + shape)` (grid
+    /// coordinates, possibly reaching off the grid), in C order.
+    #[must_use]
+    pub fn blocks_overlapping(&self, origin: [i64; 3], shape: [usize; 3]) -> Vec<Idx3> {
+        let lo = [0, 1, 2].map(|a| origin[a].max(0));
+        let hi = [0, 1, 2].map(|a| (origin[a] + shape[a] as i64).min(self.shape[a] as i64));
+        if (0..3).any(|a| lo[a] >= hi[a]) {
+            return Vec::new();
+        }
+        let c = self.chunk.map(|c| c as i64);
+        let r = |a: usize| (lo[a] / c[a]) as u64..=((hi[a] - 1) / c[a]) as u64;
+        r(0).flat_map(|z| r(1).flat_map(move |y| r(2).map(move |x| [z, y, x])))
+            .collect()
+    }
+
     /// Whether `v` is a valid voxel index.
     #[must_use]
     pub fn contains(&self, v: [i64; 3]) -> bool {

@@ -129,25 +129,10 @@ pub trait BlockStore<T: Scalar>: Send + Sync {
     ) -> Result<Block<T>, GridError> {
         let spec = self.spec();
         let mut out = Block::filled(origin, shape, outside);
-        let nb = spec.blocks();
-        let lo = [0, 1, 2].map(|a| origin[a].max(0) as u64 / spec.chunk[a]);
-        let hi = [0, 1, 2].map(|a| {
-            let end = (origin[a] + shape[a] as i64).min(spec.shape[a] as i64);
-            if end <= 0 {
-                0
-            } else {
-                ((end as u64 - 1) / spec.chunk[a] + 1).min(nb[a])
-            }
-        });
-        for bz in lo[0]..hi[0] {
-            for by in lo[1]..hi[1] {
-                for bx in lo[2]..hi[2] {
-                    let b = [bz, by, bx];
-                    let data = self.read_block(b)?;
-                    let s = spec.block_start(b).map(|c| c as i64);
-                    copy_overlap(&data, s, to_usize(spec.block_shape(b)), &mut out);
-                }
-            }
+        for b in spec.blocks_overlapping(origin, shape) {
+            let data = self.read_block(b)?;
+            let s = spec.block_start(b).map(|c| c as i64);
+            copy_overlap(&data, s, to_usize(spec.block_shape(b)), &mut out);
         }
         Ok(out)
     }

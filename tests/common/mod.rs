@@ -7,44 +7,16 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use harmap::grid::{BlockStore, GridSpec};
+use harmap::input::starfish::uv_sphere;
 use harmap::input::TriMesh;
 use harmap::math::Vec3;
 use harmap::run::RunDir;
 
 /// A UV sphere of `radius` around `c`, outward normals.
 pub fn sphere(c: Vec3, radius: f64, rings: usize, segs: usize) -> TriMesh {
-    let mut v = vec![c + Vec3::new(0.0, 0.0, radius)];
-    for r in 1..rings {
-        let t = PI * r as f64 / rings as f64;
-        for s in 0..segs {
-            let p = 2.0 * PI * s as f64 / segs as f64;
-            v.push(c + radius * Vec3::new(t.sin() * p.cos(), t.sin() * p.sin(), t.cos()));
-        }
-    }
-    v.push(c - Vec3::new(0.0, 0.0, radius));
-    let south = (v.len() - 1) as u32;
-    let ring = |r: usize, s: usize| (1 + (r - 1) * segs + s % segs) as u32;
-    let mut t = Vec::new();
-    for s in 0..segs {
-        t.push([0, ring(1, s), ring(1, s + 1)]);
-        t.push([south, ring(rings - 1, s + 1), ring(rings - 1, s)]);
-    }
-    for r in 1..rings - 1 {
-        for s in 0..segs {
-            let (a, b, cc, d) = (
-                ring(r, s),
-                ring(r, s + 1),
-                ring(r + 1, s),
-                ring(r + 1, s + 1),
-            );
-            t.push([a, cc, d]);
-            t.push([a, d, b]);
-        }
-    }
-    TriMesh {
-        vertices: v,
-        triangles: t,
-    }
+    uv_sphere(rings, segs, |t, p| {
+        c + radius * Vec3::new(t.sin() * p.cos(), t.sin() * p.sin(), t.cos())
+    })
 }
 
 /// A torus around the z axis, outward normals.
