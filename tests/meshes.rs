@@ -30,6 +30,10 @@ fn check_against_winding(name: &str, samples: usize, genus0: bool) {
     let mesh = load_mesh(&path).unwrap();
     let (spec, labels) = read_labels(&out);
     let bad = winding_disagreements(&mesh, &spec, &labels, samples, 42);
+    eprintln!(
+        "{name}: genus {} with {} piece(s) at resolution 128",
+        r.genus, r.components
+    );
     assert_eq!(bad, 0, "{name}: {bad} of {samples} voxels more than a voxel from the surface disagree with the winding number");
 }
 
@@ -59,6 +63,31 @@ fn fandisk_agrees_with_the_winding_number() {
 #[test]
 fn cactus_agrees_with_the_winding_number() {
     check_against_winding("cactus10k.obj", 300, true);
+}
+
+#[test]
+fn blub_agrees_with_the_winding_number() {
+    check_against_winding("blub_triangulated.obj", 200, false);
+}
+
+#[test]
+fn cheburashka_agrees_with_the_winding_number() {
+    check_against_winding("cheburashka.obj", 200, false);
+}
+
+#[test]
+fn homer_agrees_with_the_winding_number() {
+    check_against_winding("homer.obj", 200, false);
+}
+
+#[test]
+fn nefertiti_agrees_with_the_winding_number() {
+    check_against_winding("nefertiti.obj.gz", 100, false);
+}
+
+#[test]
+fn armadillo_agrees_with_the_winding_number() {
+    check_against_winding("armadillo.obj.gz", 100, false);
 }
 
 fn voxelize_err(name: &str) -> Option<String> {

@@ -365,3 +365,114 @@ fn label_volume_input_keeps_its_voxels() {
     // Volume voxel (k, j, i) sits at world (i, j, k) * spacing.
     assert_eq!(spec.voxel_center([6, 6, 7]), Vec3::new(0.5, 0.0, 0.0));
 }
+
+#[test]
+fn zarr_and_gzipped_raw_label_volumes_give_the_same_labels() {
+    use harmap::grid::{BlockStore, Compression, GridSpec, ZarrStore};
+    use std::io::Write;
+    let dir = tempfile::tempdir().unwrap();
+    let shape = [14u64, 18, 16];
+    let inside = |z: u64, y: u64, x: u64| {
+        let d = [
+            (z as f64 - 6.5) / 5.5,
+            (y as f64 - 8.5) / 7.5,
+            (x as f64 - 7.5) / 6.5,
+        ];
+        d.iter().map(|c| c * c).sum::<f64>() < 1.0
+    };
+    // A Zarr v3 int32 array of "label ids" (0 outside, 5 inside), chunks that do not
+    // divide the shape.
+    let spec = GridSpec {
+        shape,
+        origin: [0.0; 3],
+        spacing: 1.0,
+        chunk: [5, 7, 6],
+        unit: None,
+    };
+    let zroot = dir.path().join("seg.zarr");
+    std::fs::create_dir_all(&zroot).unwrap();
+    let z = ZarrStore::<i32>::create(
+        &zroot,
+        "/",
+        spec.clone(),
+        0,
+        Compression::Zstd(1),
+        serde_json::Map::new(),
+    )
+    .unwrap();
+    let mut raw = Vec::new();
+    for b in spec.block_indices() {
+        let st = spec.block_start(b);
+        let sh = spec.block_shape(b);
+        let mut v = Vec::new();
+        for k in 0..sh[0] {
+            for j in 0..sh[1] {
+                for i in 0..sh[2] {
+                    v.push(if inside(st[0] + k, st[1] + j, st[2] + i) {
+                        5
+                    } else {
+                        0
+                    });
+                }
+            }
+        }
+        z.write_block(b, &v).unwrap();
+    }
+    for k in 0..shape[0] {
+        for j in 0..shape[1] {
+            for i in 0..shape[2] {
+                raw.extend_from_slice(&(if inside(k, j, i) { 2.5f32 } else { -1.0 }).to_le_bytes());
+            }
+        }
+    }
+    let gz = dir.path().join("seg.raw.gz");
+    let mut enc = flate2::write::GzEncoder::new(
+        std::fs::File::create(&gz).unwrap(),
+        flate2::Compression::fast(),
+    );
+    enc.write_all(&raw).unwrap();
+    enc.finish().unwrap();
+
+    let opts = VoxelizeOptions {
+        spacing: Some(0.25),
+        ..VoxelizeOptions::default()
+    };
+    let none = harmap::input::InputOptions::default();
+    let rawopts = harmap::input::InputOptions {
+        raw: Some(harmap::input::RawSpec {
+            shape,
+            dtype: harmap::input::RawDtype::F32,
+        }),
+    };
+    let (o1, o2) = (dir.path().join("a.harmap"), dir.path().join("b.harmap"));
+    let (_, r1) =
+        voxelize_new_run(&Source::File(&zroot, &none), &opts, &o1, false, &Silent).unwrap();
+    let (_, r2) =
+        voxelize_new_run(&Source::File(&gz, &rawopts), &opts, &o2, false, &Silent).unwrap();
+    let solid = (0..shape[0])
+        .flat_map(|k| (0..shape[1]).flat_map(move |j| (0..shape[2]).map(move |i| (k, j, i))))
+        .filter(|&(k, j, i)| inside(k, j, i))
+        .count() as u64;
+    assert_eq!(r1.counts[1] + r1.counts[2] + r1.counts[3], solid);
+    assert_eq!(r1.counts, r2.counts);
+    assert_eq!(read_labels(&o1).1, read_labels(&o2).1);
+    // A raw file whose size does not match the layout is refused, naming both.
+    let bad = harmap::input::InputOptions {
+        raw: Some(harmap::input::RawSpec {
+            shape: [14, 18, 17],
+            dtype: harmap::input::RawDtype::F32,
+        }),
+    };
+    let e = voxelize_new_run(
+        &Source::File(&gz, &bad),
+        &opts,
+        &dir.path().join("c"),
+        false,
+        &Silent,
+    )
+    .unwrap_err();
+    assert!(
+        e.to_string().contains("seg.raw.gz") && e.to_string().contains("--raw-shape"),
+        "{e}"
+    );
+}

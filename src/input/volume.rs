@@ -225,12 +225,14 @@ impl LabelVolume {
                     .map_err(|e| InputError::invalid(&self.path, e.to_string()))?;
                 let dt = array.data_type();
                 let es = raw.len() / n.max(1);
-                let dtype = zarr_dtype(&dt.to_string(), es).ok_or_else(|| {
-                    InputError::invalid(
+                let dtype =
+                    zarr_dtype(dt.to_string().split_whitespace().next().unwrap_or(""), es)
+                        .ok_or_else(|| {
+                            InputError::invalid(
                         &self.path,
                         format!("unsupported label data type {dt}; use an integer or float type"),
                     )
-                })?;
+                        })?;
                 Ok(raw.chunks_exact(es).map(|b| dtype.positive_ne(b)).collect())
             }
             Source::Raw { file, dtype, .. } => {
