@@ -235,3 +235,151 @@ fn shapes_harmap_cannot_map_are_refused() {
     write_obj(&o, &open);
     refused(&o, &["--resolution", "16"], &["open.obj", "not closed"]);
 }
+
+#[test]
+fn force_replaces_only_runs_and_trailing_slashes_are_fine() {
+    let d = tempfile::tempdir().unwrap();
+    let cube = file(d.path(), "cube.obj", cube_obj().as_bytes());
+    let c = cube.to_str().unwrap();
+    // A directory that is not a run survives --force.
+    let precious = d.path().join("precious");
+    std::fs::create_dir(&precious).unwrap();
+    std::fs::write(precious.join("thesis.tex"), "x").unwrap();
+    let o = harmap(&[
+        "voxelize",
+        c,
+        "-o",
+        precious.to_str().unwrap(),
+        "--force",
+        "--resolution",
+        "8",
+        "--center-radius",
+        "0",
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("--force replaces only a harmap run"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(precious.join("thesis.tex").exists());
+    // `-o run/` makes `run`, and `--force` on it replaces it.
+    let slash = format!("{}/", d.path().join("r.harmap").display());
+    for extra in [&[][..], &["--force"][..]] {
+        let mut args = vec![
+            "voxelize",
+            c,
+            "-o",
+            &slash,
+            "--resolution",
+            "8",
+            "--center-radius",
+            "0",
+        ];
+        args.extend_from_slice(extra);
+        let o = harmap(&args);
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        assert!(harmap::run::RunDir::open(&d.path().join("r.harmap")).is_ok());
+    }
+    let left: Vec<_> = std::fs::read_dir(d.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    assert!(
+        left.iter()
+            .all(|n| !n.contains(".partial") && !n.contains(".old") && !n.contains(".lock")),
+        "{left:?}"
+    );
+}
+
+#[test]
+fn huge_values_are_refused_not_allocated() {
+    let d = tempfile::tempdir().unwrap();
+    let cube = file(d.path(), "cube.obj", cube_obj().as_bytes());
+    refused(
+        &cube,
+        &["--resolution", "16", "--center-radius", "1e300"],
+        &["reaches the boundary"],
+    );
+    refused(
+        &cube,
+        &["--resolution", "16", "--padding", "9223372036854775808"],
+        &["--padding"],
+    );
+    // A checkerboard falls apart into a million pieces: refused within the budget.
+    let n = 100usize;
+    let board: Vec<u8> = (0..n * n * n)
+        .map(|i| u8::from((i % n + (i / n) % n + i / (n * n)).is_multiple_of(2)))
+        .collect();
+    let raw = file(d.path(), "board.raw", &board);
+    refused(
+        &raw,
+        &[
+            "--raw-shape",
+            "100,100,100",
+            "--raw-dtype",
+            "u8",
+            "--mem",
+            "40MiB",
+        ],
+        &["too many separate pieces"],
+    );
+}
+
+#[test]
+fn run_reuses_only_a_matching_voxelization() {
+    let d = tempfile::tempdir().unwrap();
+    let cube = file(d.path(), "cube.obj", cube_obj().as_bytes());
+    let out = d.path().join("c.harmap");
+    let (c, o) = (cube.to_str().unwrap(), out.to_str().unwrap());
+    let base = [
+        "run",
+        c,
+        "-o",
+        o,
+        "--resolution",
+        "8",
+        "--center-radius",
+        "0",
+    ];
+    assert!(harmap(&base).status.success());
+    let again = harmap(&base);
+    assert!(
+        String::from_utf8_lossy(&again.stdout).contains("skipped"),
+        "{}",
+        String::from_utf8_lossy(&again.stdout)
+    );
+    let other = harmap(&[
+        "run",
+        c,
+        "-o",
+        o,
+        "--resolution",
+        "10",
+        "--center-radius",
+        "0",
+    ]);
+    assert_eq!(other.status.code(), Some(2));
+    assert!(
+        stderr(&other).contains("another set of options") && stderr(&other).contains("--force"),
+        "{}",
+        stderr(&other)
+    );
+    let spot = d.path().join("s.obj");
+    write_obj(&spot, &sphere(Vec3::ZERO, 1.0, 12, 24));
+    let other = harmap(&[
+        "run",
+        spot.to_str().unwrap(),
+        "-o",
+        o,
+        "--resolution",
+        "8",
+        "--center-radius",
+        "0",
+    ]);
+    assert!(
+        stderr(&other).contains("another input"),
+        "{}",
+        stderr(&other)
+    );
+}

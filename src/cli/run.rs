@@ -9,7 +9,7 @@ use harmap::run::RunDir;
 
 use super::progress::Bars;
 use super::voxelize::VoxelizeArgs;
-use super::Global;
+use super::{Global, UsageError};
 
 /// Run the pipeline on a shape: today, voxelization (labels and center).
 ///
@@ -55,15 +55,7 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         opts.center = Some([0.0, 0.0, 0.0]);
     }
     let bars = Bars::new(g);
-    let done = !a.force
-        && RunDir::open(&out)
-            .ok()
-            .and_then(|r| r.attrs().ok())
-            .is_some_and(|v| {
-                v.pointer("/stages/voxelize/status")
-                    .and_then(|s| s.as_str())
-                    == Some("done")
-            });
+    let done = !a.force && voxelize_done(&out, a.input.as_deref(), &opts)?;
     if done {
         g.say(&format!(
             "voxelize: already done in {} (skipped; --force redoes it)",
@@ -96,4 +88,46 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         out.display()
     ));
     Ok(())
+}
+
+/// Whether `out` holds a finished voxelization of `input` with `opts`. A finished one of
+/// another input or other options is an error: it needs --force, so no stale result is
+/// silently reused.
+fn voxelize_done(
+    out: &std::path::Path,
+    input: Option<&std::path::Path>,
+    opts: &harmap::voxelize::VoxelizeOptions,
+) -> anyhow::Result<bool> {
+    let Some(attrs) = RunDir::open(out).ok().and_then(|r| r.attrs().ok()) else {
+        return Ok(false);
+    };
+    if attrs
+        .pointer("/stages/voxelize/status")
+        .and_then(|s| s.as_str())
+        != Some("done")
+    {
+        return Ok(false);
+    }
+    let same_input = match input {
+        None => attrs.pointer("/input/builtin").is_some(),
+        Some(p) => {
+            harmap::input::sha256_file(p).ok().as_deref()
+                == attrs.pointer("/input/sha256").and_then(|s| s.as_str())
+        }
+    };
+    let same_opts =
+        attrs.pointer("/stages/voxelize/options") == serde_json::to_value(opts).ok().as_ref();
+    if same_input && same_opts {
+        return Ok(true);
+    }
+    Err(UsageError(format!(
+        "{} holds a run of another {}; pass --force to redo it, or choose another -o",
+        out.display(),
+        if same_input {
+            "set of options"
+        } else {
+            "input"
+        }
+    ))
+    .into())
 }

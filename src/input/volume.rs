@@ -90,7 +90,8 @@ enum Source {
     Raw {
         file: File,
         dtype: RawDtype,
-        _tmp: Option<PathBuf>,
+        /// The decompressed copy of a `.gz` input, deleted on drop.
+        _tmp: Option<tempfile::NamedTempFile>,
     },
 }
 
@@ -107,14 +108,6 @@ impl std::fmt::Debug for LabelVolume {
             .field("path", &self.path)
             .field("shape", &self.shape)
             .finish_non_exhaustive()
-    }
-}
-
-impl Drop for LabelVolume {
-    fn drop(&mut self) {
-        if let Source::Raw { _tmp: Some(p), .. } = &self.source {
-            let _ = std::fs::remove_file(p);
-        }
     }
 }
 
@@ -152,31 +145,25 @@ impl LabelVolume {
     pub fn open_raw(path: &Path, spec: &RawSpec) -> Result<Self, InputError> {
         let (_, gz) = extension(path);
         let (file, tmp) = if gz {
-            let tmp = std::env::temp_dir().join(format!(
-                "harmap-raw-{}-{}",
-                std::process::id(),
-                path.file_name()
-                    .map(|n| n.to_string_lossy().into_owned())
-                    .unwrap_or_default()
-            ));
+            // A private, unpredictably named file that is removed when dropped.
+            let mut tmp = tempfile::NamedTempFile::new()
+                .map_err(|e| InputError::io(&std::env::temp_dir(), e))?;
             let src = File::open(path).map_err(|e| InputError::io(path, e))?;
             let mut dec = flate2::read::MultiGzDecoder::new(std::io::BufReader::new(src));
-            let mut out = File::create(&tmp).map_err(|e| InputError::io(&tmp, e))?;
-            std::io::copy(&mut dec, &mut out)
+            std::io::copy(&mut dec, tmp.as_file_mut())
                 .map_err(|e| InputError::invalid(path, format!("cannot gunzip: {e}")))?;
-            (
-                File::open(&tmp).map_err(|e| InputError::io(&tmp, e))?,
-                Some(tmp),
-            )
+            let file = tmp.reopen().map_err(|e| InputError::io(tmp.path(), e))?;
+            (file, Some(tmp))
         } else {
             (File::open(path).map_err(|e| InputError::io(path, e))?, None)
         };
         let len = file.metadata().map_err(|e| InputError::io(path, e))?.len();
-        let want = spec.shape.iter().product::<u64>() * spec.dtype.size() as u64;
+        let want = spec
+            .shape
+            .iter()
+            .try_fold(spec.dtype.size() as u64, |acc, &n| acc.checked_mul(n))
+            .unwrap_or(u64::MAX);
         if spec.shape.contains(&0) || len != want {
-            if let Some(t) = &tmp {
-                let _ = std::fs::remove_file(t);
-            }
             return Err(InputError::invalid(
                 path,
                 format!(
@@ -194,6 +181,18 @@ impl LabelVolume {
                 _tmp: tmp,
             },
         })
+    }
+
+    /// Bytes of one decoded chunk of the source (a raw file is read row by row: 0).
+    #[must_use]
+    pub fn chunk_bytes(&self) -> u64 {
+        match &self.source {
+            Source::Zarr(a) => a
+                .chunk_shape(&[0, 0, 0])
+                .map_or(0, |c| c.iter().map(|n| n.get()).product::<u64>())
+                .saturating_mul(a.data_type().fixed_size().unwrap_or(8) as u64),
+            Source::Raw { .. } => 0,
+        }
     }
 
     /// The file or directory read.
@@ -216,8 +215,9 @@ impl LabelVolume {
             Source::Zarr(array) => {
                 let subset = ArraySubset::new_with_start_shape(start.to_vec(), size.to_vec())
                     .map_err(|e| InputError::invalid(&self.path, e.to_string()))?;
-                let bytes: zarrs::array::ArrayBytes<'static> =
-                    array.retrieve_array_subset(&subset).map_err(|e| {
+                let bytes: zarrs::array::ArrayBytes<'static> = array
+                    .retrieve_array_subset_opt(&subset, &single_threaded())
+                    .map_err(|e| {
                         InputError::invalid(&self.path, format!("reading {start:?}+{size:?}: {e}"))
                     })?;
                 let raw = bytes
@@ -253,6 +253,14 @@ impl LabelVolume {
             }
         }
     }
+}
+
+/// Codec options for reads inside our own parallel loop over blocks: zarrs must not
+/// start threads of its own there.
+fn single_threaded() -> zarrs::array::CodecOptions {
+    let mut o = zarrs::array::CodecOptions::default();
+    o.set_concurrent_target(1);
+    o
 }
 
 impl RawDtype {

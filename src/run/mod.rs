@@ -51,6 +51,14 @@ pub enum RunError {
         /// The path.
         path: PathBuf,
     },
+    /// Another harmap process is building the same run.
+    ///
+    /// Fix: wait for it, or choose another `-o`.
+    #[error("{}: another harmap process is writing this run (its lock file is held); wait for it or choose another -o", path.display())]
+    Busy {
+        /// The run.
+        path: PathBuf,
+    },
     /// The run was written by an incompatible version of harmap.
     #[error("{}: format version {found}, this harmap reads version {FORMAT_VERSION}; redo the run with this version", path.display())]
     Version {
@@ -118,21 +126,45 @@ pub struct RunDir {
 pub struct Staging {
     run: RunDir,
     dest: PathBuf,
-    force: bool,
+    lock: Option<(fs::File, PathBuf)>,
     committed: bool,
 }
 
 impl Staging {
-    /// Start a new run that will live at `dest`. Fails if `dest` exists and `force` is
-    /// not set. The staging directory is `dest` with `.partial` appended; a stale one
-    /// from a killed run is removed first.
+    /// Start a new run that will live at `dest`.
+    ///
+    /// `dest` must name a directory (not `.`, `..` or a path ending in one). If it
+    /// exists, it is replaced only when `force` is set **and** it is a harmap run
+    /// directory (or empty): `--force` never deletes anything else. A lock file
+    /// (`dest.lock`) keeps two harmap processes from building the same run; a staging
+    /// directory left by a killed run is removed.
     pub fn begin(dest: &Path, force: bool) -> Result<Self, RunError> {
-        if dest.exists() && !force {
-            return Err(RunError::Exists {
+        let name = dest
+            .file_name()
+            .filter(|n| !n.is_empty() && *n != "." && *n != "..")
+            .ok_or_else(|| RunError::NotARun {
                 path: dest.to_owned(),
-            });
+                reason: "the output must name a directory, like shape.harmap".into(),
+            })?;
+        let dest = dest.with_file_name(name);
+        if dest.exists() {
+            if !force {
+                return Err(RunError::Exists { path: dest });
+            }
+            let empty_dir = fs::read_dir(&dest).is_ok_and(|mut d| d.next().is_none());
+            if !empty_dir && RunDir::open(&dest).is_err() {
+                return Err(RunError::NotARun {
+                    path: dest,
+                    reason: "--force replaces only a harmap run directory (or an empty one), and this is neither; choose another -o".into(),
+                });
+            }
         }
-        let staging = staging_path(dest);
+        let lock_path = sibling(&dest, "lock");
+        let lock = fs::File::create(&lock_path).map_err(io(&lock_path))?;
+        if lock.try_lock().is_err() {
+            return Err(RunError::Busy { path: dest });
+        }
+        let staging = staging_path(&dest);
         if staging.exists() {
             fs::remove_dir_all(&staging).map_err(io(&staging))?;
         }
@@ -144,8 +176,8 @@ impl Staging {
         }))?;
         Ok(Self {
             run,
-            dest: dest.to_owned(),
-            force,
+            dest,
+            lock: Some((lock, lock_path)),
             committed: false,
         })
     }
@@ -156,36 +188,32 @@ impl Staging {
         &self.run
     }
 
-    /// Move the finished run into place (replacing an old one when forced).
+    /// Move the finished run into place, replacing an old run (checked in `begin`).
+    /// If the new run cannot be moved in, the old one is put back.
     pub fn commit(mut self) -> Result<RunDir, RunError> {
-        let old = self.dest.with_file_name(format!(
-            "{}.old-{}",
-            self.dest
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default(),
-            std::process::id()
-        ));
+        let old = sibling(&self.dest, &format!("old-{}", std::process::id()));
         let replacing = self.dest.exists();
         if replacing {
-            debug_assert!(self.force);
             fs::rename(&self.dest, &old).map_err(io(&self.dest))?;
         }
-        fs::rename(&self.run.root, &self.dest).map_err(io(&self.dest))?;
-        if let Some(d) = self.dest.parent().and_then(|p| {
-            fs::File::open(if p.as_os_str().is_empty() {
-                Path::new(".")
-            } else {
-                p
-            })
-            .ok()
-        }) {
+        if let Err(e) = fs::rename(&self.run.root, &self.dest) {
+            if replacing {
+                let _ = fs::rename(&old, &self.dest);
+            }
+            return Err(io(&self.dest)(e));
+        }
+        let parent = self
+            .dest
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        if let Ok(d) = fs::File::open(parent) {
             let _ = d.sync_all();
         }
+        self.committed = true;
         if replacing {
             fs::remove_dir_all(&old).map_err(io(&old))?;
         }
-        self.committed = true;
         Ok(RunDir {
             root: self.dest.clone(),
         })
@@ -197,15 +225,27 @@ impl Drop for Staging {
         if !self.committed {
             let _ = fs::remove_dir_all(&self.run.root);
         }
+        if let Some((lock, path)) = self.lock.take() {
+            let _ = fs::remove_file(&path);
+            drop(lock);
+        }
     }
+}
+
+/// `dest` with `.suffix` appended to its last component (`a/b.harmap` ->
+/// `a/b.harmap.partial`), whatever trailing slash `dest` was written with.
+fn sibling(dest: &Path, suffix: &str) -> PathBuf {
+    let name = dest
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    dest.with_file_name(format!("{name}.{suffix}"))
 }
 
 /// Where the run for `dest` is staged.
 #[must_use]
 pub fn staging_path(dest: &Path) -> PathBuf {
-    let mut s = dest.as_os_str().to_owned();
-    s.push(".partial");
-    PathBuf::from(s)
+    sibling(dest, "partial")
 }
 
 impl RunDir {
@@ -356,4 +396,24 @@ pub fn ome_multiscales(name: &str, spec: &GridSpec) -> Value {
             }]
         }]
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_run_being_built_is_locked() {
+        let d = tempfile::tempdir().unwrap();
+        let dest = d.path().join("x.harmap");
+        let first = Staging::begin(&dest, false).unwrap();
+        let second = Staging::begin(&dest, false).unwrap_err();
+        assert!(matches!(second, RunError::Busy { .. }), "{second}");
+        first.commit().unwrap();
+        assert!(RunDir::open(&dest).is_ok());
+        assert!(!d.path().join("x.harmap.lock").exists());
+        // Dropped without commit: nothing is left.
+        drop(Staging::begin(&d.path().join("y.harmap"), false).unwrap());
+        assert_eq!(std::fs::read_dir(d.path()).unwrap().count(), 1);
+    }
 }

@@ -18,16 +18,29 @@ use crate::grid::{BlockStore, GridError};
 use crate::math::Idx3;
 use crate::progress::Progress;
 
+/// What the distance transform found.
+#[derive(Clone, Copy, Debug)]
+pub struct Deepest {
+    /// The deepest solid voxel `[z, y, x]`.
+    pub voxel: Idx3,
+    /// Its distance (voxels) to the nearest non-solid voxel.
+    pub depth: f64,
+    /// The distance of the queried voxel, if one was asked for.
+    pub query_depth: Option<f64>,
+}
+
 /// Distance cap in voxels (grids are at most 2^15 along an axis).
 const FAR: u32 = 1 << 16;
 
 /// The deepest solid voxel and its distance (voxels) to the nearest non-solid voxel.
-/// Ties go to the lowest `[z, y, x]` in C order.
+/// Ties go to the lowest `[z, y, x]` in C order. With `query`, also the distance of that
+/// voxel (0 when it is not solid).
 pub fn deepest_voxel(
     store: &dyn BlockStore<u8>,
     scratch: &Path,
+    query: Option<Idx3>,
     progress: &dyn Progress,
-) -> Result<(Idx3, f64), crate::Error> {
+) -> Result<Deepest, crate::Error> {
     let spec = store.spec();
     let [nz, ny, nx] = spec.shape.map(|c| c as usize);
     let plane = ny * nx;
@@ -65,6 +78,7 @@ pub fn deepest_voxel(
     let mut next = vec![FAR; plane];
     let mut best: (u64, Idx3) = (0, [0, 0, 0]);
     let mut g2 = vec![0u64; plane];
+    let mut query_d2 = None;
     let mut t = vec![0u64; plane];
     for z in (0..nz).rev() {
         let s = slice(z)?;
@@ -93,7 +107,10 @@ pub fn deepest_voxel(
             .map(|(&g, _)| g)
             .max()
             .unwrap_or(0);
-        if max_g2 == 0 || max_g2 < best.0 {
+        let q_here = query
+            .filter(|q| q[0] == z as u64)
+            .map(|q| (q[1] as usize, q[2] as usize));
+        if (max_g2 == 0 || max_g2 < best.0) && q_here.is_none() {
             progress.advance(1);
             continue;
         }
@@ -103,16 +120,18 @@ pub fn deepest_voxel(
             lower_envelope(&f, col);
         });
         let floor = best.0;
-        let rows: Vec<(u64, usize)> = (0..ny)
+        let rows: Vec<(u64, usize, Option<u64>)> = (0..ny)
             .into_par_iter()
             .map(|y| {
                 let f: Vec<u64> = (0..nx).map(|x| t[x * ny + y]).collect();
                 // Likewise the in-plane column distance bounds the row's distances.
-                if (0..nx)
-                    .filter(|&x| s[y * nx + x] == 1)
-                    .all(|x| f[x] < floor)
+                let q_row = q_here.filter(|q| q.0 == y).map(|q| q.1);
+                if q_row.is_none()
+                    && (0..nx)
+                        .filter(|&x| s[y * nx + x] == 1)
+                        .all(|x| f[x] < floor)
                 {
-                    return (0, 0);
+                    return (0, 0, None);
                 }
                 let mut d = vec![0u64; nx];
                 lower_envelope(&f, &mut d);
@@ -122,13 +141,20 @@ pub fn deepest_voxel(
                         b = (d[x], x);
                     }
                 }
-                b
+                (
+                    b.0,
+                    b.1,
+                    q_row.map(|qx| if s[y * nx + qx] == 1 { d[qx] } else { 0 }),
+                )
             })
             .collect();
         // The first maximum over y (ascending) keeps the lowest y; across slices z
         // descends, so an equal distance in a lower slice replaces the best.
         let mut slice_best = (0u64, [0u64; 3]);
-        for (y, &(d, x)) in rows.iter().enumerate() {
+        for (y, &(d, x, q)) in rows.iter().enumerate() {
+            if q.is_some() {
+                query_d2 = q;
+            }
             if d > slice_best.0 {
                 slice_best = (d, [z as u64, y as u64, x as u64]);
             }
@@ -141,7 +167,11 @@ pub fn deepest_voxel(
     progress.finish();
     drop(file);
     let _ = std::fs::remove_file(scratch);
-    Ok((best.1, (best.0 as f64).sqrt()))
+    Ok(Deepest {
+        voxel: best.1,
+        depth: (best.0 as f64).sqrt(),
+        query_depth: query_d2.map(|d| (d as f64).sqrt()),
+    })
 }
 
 /// 1-D squared distance transform of sampled function `f` (Felzenszwalb-Huttenlocher):

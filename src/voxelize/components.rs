@@ -8,11 +8,17 @@
 //! component). Local labels are numbered in scan order and unions always keep the lower
 //! id, so component numbers do not depend on the thread count.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use super::VoxelizeError;
 use crate::grid::BlockStore;
 use crate::math::{volume, Idx3};
 use crate::parallel::map_bounded;
 use crate::progress::Progress;
+
+/// Bytes kept per local component until the components are resolved (size, border
+/// flag, union-find entry, global id, root map, offset share).
+const BYTES_PER_COMPONENT: u64 = 32;
 
 /// Run-length encoded face labels: `(run length, label)`; label 0 = not in the set.
 type Rle = Vec<(u32, u32)>;
@@ -154,12 +160,16 @@ pub fn find(
     store: &dyn BlockStore<u8>,
     pred: fn(u8) -> bool,
     workers: usize,
+    limit: u64,
     name: &str,
     progress: &dyn Progress,
 ) -> Result<Components, crate::Error> {
     let spec = store.spec();
     let blocks = spec.block_indices();
     progress.start(name, blocks.len() as u64);
+    // What the per-block results hold, against `limit`: a grid cut into millions of
+    // pieces (a noisy segmentation) would otherwise outgrow the memory budget.
+    let held = AtomicU64::new(0);
     let infos = map_bounded(&blocks, workers, |&b| -> Result<BlockInfo, crate::Error> {
         let data = store.read_block(b)?;
         let s = spec.block_shape(b).map(|c| c as usize);
@@ -186,6 +196,15 @@ pub fn find(
                     }
                 }
             }
+        }
+        let bytes = BYTES_PER_COMPONENT * sizes.len() as u64
+            + 8 * faces.iter().flatten().map(|f| f.len() as u64).sum::<u64>();
+        if held.fetch_add(bytes, Ordering::Relaxed) + bytes > limit {
+            return Err(VoxelizeError::Topology(format!(
+                "the grid falls apart into too many separate pieces to label within the memory budget ({} pieces in the first blocks alone); denoise the input, use a coarser grid, or give more --mem",
+                held.load(Ordering::Relaxed) / BYTES_PER_COMPONENT
+            ))
+            .into());
         }
         progress.advance(1);
         Ok(BlockInfo {

@@ -26,6 +26,11 @@ fn check(shape: [u64; 3], what: &str) -> Result<(), VoxelizeError> {
 }
 
 fn check_padding(padding: u64) -> Result<(), VoxelizeError> {
+    if padding > MAX_AXIS {
+        return Err(VoxelizeError::Options(format!(
+            "--padding {padding} is larger than a grid axis may be ({MAX_AXIS})"
+        )));
+    }
     if padding < MIN_PADDING {
         return Err(VoxelizeError::Options(format!(
             "--padding {padding} is too small: the four exterior layers need at least {MIN_PADDING} voxels around the shape"

@@ -92,11 +92,12 @@ pub enum Scratch {
 }
 
 impl Scratch {
-    /// Whether a grid of `voxels` bytes is kept in memory under `mem`.
+    /// Whether a grid of `voxels` bytes is kept in memory under `mem`, next to `held`
+    /// bytes that stay resident anyway (the input shape).
     #[must_use]
-    pub fn in_memory(self, voxels: u64, mem: MemBudget) -> bool {
+    pub fn in_memory(self, voxels: u64, mem: MemBudget, held: u64) -> bool {
         match self {
-            Scratch::Auto => voxels <= mem.work_bytes() / 2,
+            Scratch::Auto => voxels <= mem.work_bytes().saturating_sub(held) / 2,
             Scratch::Memory => true,
             Scratch::Disk => false,
         }
@@ -244,23 +245,54 @@ pub fn voxelize(
     let threads = rayon::current_num_threads();
     let c = opts.chunk;
     let plane = spec.shape[1] * spec.shape[2];
+    // The solid occupancy lives in memory when it fits in half of what the budget leaves
+    // beside the shape, else in an uncompressed memory-mapped scratch file; both give the
+    // same labels. What stays resident through every pass is charged to each of them.
+    let in_memory = opts
+        .scratch
+        .in_memory(spec.num_voxels(), opts.mem, shape_bytes);
+    let held = shape_bytes + if in_memory { spec.num_voxels() } else { 0 };
+    let input_chunk = match shape {
+        // A block may overlap up to 8 chunks of the input array, each decoded whole.
+        Shape::Volume(v) => 8 * v.chunk_bytes(),
+        Shape::Mesh(_) => 0,
+    };
+    let what = |s: &str| {
+        if in_memory {
+            format!("{s} (with the solid grid in memory; --scratch disk needs less)")
+        } else {
+            s.to_owned()
+        }
+    };
     let w_solid = opts.mem.workers(
-        "the inside test of one block column",
-        shape_bytes,
-        c * c * spec.shape[2] * 2 + c * c * 16,
+        &what("the inside test of one block column"),
+        held,
+        (c * c * spec.shape[2] * 2 + c * c * 16).max(c * c * c + input_chunk),
         threads,
     )?;
     let w_ccl = opts.mem.workers(
-        "component labelling of one block",
-        0,
+        &what("component labelling of one block"),
+        held,
         6 * c * c * c,
         threads,
     )?;
-    let w_label = opts
+    let w_label = opts.mem.workers(
+        &what("labelling one block"),
+        held,
+        label_worker_bytes(c),
+        threads,
+    )?;
+    opts.mem.workers(
+        &what("the distance transform (a few slices)"),
+        held,
+        40 * plane,
+        1,
+    )?;
+    // What the component passes may keep beyond their workers' blocks.
+    let ccl_limit = opts
         .mem
-        .workers("labelling one block", 0, label_worker_bytes(c), threads)?;
-    opts.mem
-        .workers("the distance transform (a few slices)", 0, 40 * plane, 1)?;
+        .work_bytes()
+        .saturating_sub(held + w_ccl as u64 * 6 * c * c * c);
     for w in [w_solid, w_ccl, w_label] {
         if w < threads {
             progress.info(&format!(
@@ -275,9 +307,6 @@ pub fn voxelize(
         path: scratch_dir.clone(),
         source: e,
     })?;
-    // The solid occupancy lives in memory when it fits in half the budget, else in an
-    // uncompressed memory-mapped scratch file; both give the same labels.
-    let in_memory = opts.scratch.in_memory(spec.num_voxels(), opts.mem);
     let solid: Box<dyn BlockStore<u8>> = if in_memory {
         Box::new(MemStore::<u8>::new(spec.clone(), 0))
     } else {
@@ -306,7 +335,14 @@ pub fn voxelize(
     lap("solid", &mut t);
 
     // 2. Fill enclosed cavities: background components that do not reach the grid faces.
-    let bg = components::find(solid, |v| v != 1, w_ccl, "voxelize: cavities", progress)?;
+    let bg = components::find(
+        solid,
+        |v| v != 1,
+        w_ccl,
+        ccl_limit,
+        "voxelize: cavities",
+        progress,
+    )?;
     let cavities: Vec<u32> = (0..bg.sizes.len() as u32)
         .filter(|&c| !bg.touches_border[c as usize])
         .collect();
@@ -325,7 +361,14 @@ pub fn voxelize(
     lap("cavities", &mut t);
 
     // 3. Pieces and genus.
-    let mut pieces = components::find(solid, |v| v == 1, w_ccl, "voxelize: components", progress)?;
+    let mut pieces = components::find(
+        solid,
+        |v| v == 1,
+        w_ccl,
+        ccl_limit,
+        "voxelize: components",
+        progress,
+    )?;
     if pieces.sizes.is_empty() {
         return Err(VoxelizeError::Empty {
             shape: spec.shape,
@@ -351,7 +394,14 @@ pub fn voxelize(
             "kept the largest of {} pieces; removed {removed_voxels} voxels",
             pieces_removed + 1
         ));
-        pieces = components::find(solid, |v| v == 1, w_ccl, "voxelize: components", progress)?;
+        pieces = components::find(
+            solid,
+            |v| v == 1,
+            w_ccl,
+            ccl_limit,
+            "voxelize: components",
+            progress,
+        )?;
     }
     let ncomp = pieces.sizes.len() as u64;
     let chi = euler::euler_characteristic(solid, w_ccl)?;
@@ -391,31 +441,34 @@ pub fn voxelize(
     }
     drop(pieces);
 
-    // 4. Center.
-    let (center_voxel, depth) = match opts.center {
-        None => center::deepest_voxel(solid, &scratch_dir.join("zdist.u16"), progress)?,
+    // 4. Center: the deepest voxel, or the one given (whose depth the same streamed
+    // distance transform measures).
+    let user_voxel = match opts.center {
+        None => None,
         Some(p) => {
             let p = Vec3::from_array(p);
-            let v = spec.nearest_voxel(p).ok_or_else(|| {
+            Some(spec.nearest_voxel(p).ok_or_else(|| {
                 VoxelizeError::Center(format!(
                     "--center {},{},{} lies outside the grid; give a point inside the shape",
                     p.x, p.y, p.z
                 ))
-            })?;
-            (v, f64::NAN)
+            })?)
         }
     };
-    check_center_ball(
-        solid,
-        center_voxel,
-        opts.center_radius,
-        opts.center.is_some(),
-    )?;
-    let depth = if depth.is_nan() {
-        local_depth(solid, center_voxel)?
-    } else {
-        depth
+    let deep = center::deepest_voxel(solid, &scratch_dir.join("zdist.u16"), user_voxel, progress)?;
+    let (center_voxel, depth) = match user_voxel {
+        None => (deep.voxel, deep.depth),
+        Some(v) => (v, deep.query_depth.unwrap_or(0.0)),
     };
+    if depth == 0.0 {
+        let p = spec.voxel_center(center_voxel);
+        return Err(VoxelizeError::Center(format!(
+            "--center {},{},{} is not inside the solid (voxel [{}, {}, {}] is outside); give a point well inside the shape",
+            p.x, p.y, p.z, center_voxel[0], center_voxel[1], center_voxel[2]
+        ))
+        .into());
+    }
+    check_center_ball(solid, center_voxel, opts.center_radius, depth)?;
     lap("center", &mut t);
 
     // 5. Labels.
@@ -453,32 +506,45 @@ pub fn voxelize(
     })
 }
 
-/// Check that every voxel of the center ball is solid and not on the boundary.
+/// Check that every voxel of the center ball is solid and not on the boundary, given
+/// `depth`, the distance from the center voxel to the nearest non-solid voxel.
+///
+/// Every voxel closer than `depth` is solid, so a ball with `radius + 1 < depth` is
+/// fine and one with `radius >= depth` holds a non-solid voxel. Only in between are
+/// the voxels looked at, three slices of the ball's box at a time.
 fn check_center_ball(
     solid: &dyn BlockStore<u8>,
     c: Idx3,
     radius: f64,
-    user: bool,
+    depth: f64,
 ) -> Result<(), crate::Error> {
-    let r = radius.ceil() as i64 + 1;
-    let origin = c.map(|v| v as i64 - r);
-    let n = (2 * r + 1) as usize;
-    let region = solid.read_region(origin, [n; 3], 0)?;
-    let ball = CenterBall { voxel: c, radius };
-    let at = |g: [i64; 3]| region.at_global(g);
-    if at(c.map(|v| v as i64)) != 1 {
-        let spec = solid.spec();
-        let p = spec.voxel_center(c);
-        return Err(VoxelizeError::Center(format!(
-            "--center {},{},{} is not inside the solid (voxel [{}, {}, {}] is outside); give a point well inside the shape",
-            p.x, p.y, p.z, c[0], c[1], c[2]
+    let fail = |at: String| -> crate::Error {
+        let advice = if radius >= 1.0 {
+            "use a smaller --center-radius, another --center, or a finer --resolution"
+        } else {
+            "use another --center or a finer --resolution"
+        };
+        VoxelizeError::Center(format!(
+            "the center ball (radius {radius} voxels around voxel [{}, {}, {}]) reaches the boundary{at}: the solid is {depth:.1} voxels deep there; {advice}",
+            c[0], c[1], c[2]
         ))
-        .into());
+        .into()
+    };
+    if radius + 1.0 < depth {
+        return Ok(());
     }
+    if radius >= depth {
+        return Err(fail(String::new()));
+    }
+    let r = radius.ceil() as i64 + 1;
+    let n = (2 * r + 1) as usize;
+    let ball = CenterBall { voxel: c, radius };
+    let ci = c.map(|v| v as i64);
     for dz in -r + 1..r {
+        let slab = solid.read_region([ci[0] + dz - 1, ci[1] - r, ci[2] - r], [3, n, n], 0)?;
         for dy in -r + 1..r {
             for dx in -r + 1..r {
-                let g = [c[0] as i64 + dz, c[1] as i64 + dy, c[2] as i64 + dx];
+                let g = [ci[0] + dz, ci[1] + dy, ci[2] + dx];
                 if !ball.contains(g) {
                     continue;
                 }
@@ -493,51 +559,12 @@ fn check_center_ball(
                 ];
                 if nbrs
                     .iter()
-                    .any(|d| at([g[0] + d[0], g[1] + d[1], g[2] + d[2]]) != 1)
+                    .any(|d| slab.at_global([g[0] + d[0], g[1] + d[1], g[2] + d[2]]) != 1)
                 {
-                    let hint = if user {
-                        "choose a center deeper inside or"
-                    } else {
-                        "the solid is too thin here:"
-                    };
-                    return Err(VoxelizeError::Center(format!(
-                        "the center ball (radius {radius} voxels around voxel [{}, {}, {}]) reaches the boundary at voxel [{}, {}, {}]; {hint} use a smaller --center-radius or a finer --resolution",
-                        c[0], c[1], c[2], g[0], g[1], g[2]
-                    ))
-                    .into());
+                    return Err(fail(format!(" at voxel [{}, {}, {}]", g[0], g[1], g[2])));
                 }
             }
         }
     }
     Ok(())
-}
-
-/// Distance (voxels) from `c` to the nearest non-solid voxel, searched in growing cubes
-/// (used for a user-given center, where no distance transform ran).
-fn local_depth(solid: &dyn BlockStore<u8>, c: Idx3) -> Result<f64, crate::Error> {
-    let mut r: i64 = 4;
-    loop {
-        let origin = c.map(|v| v as i64 - r);
-        let n = (2 * r + 1) as usize;
-        let region = solid.read_region(origin, [n; 3], 0)?;
-        let mut best = f64::INFINITY;
-        for z in 0..n {
-            for y in 0..n {
-                for x in 0..n {
-                    if region.data[(z * n + y) * n + x] != 1 {
-                        let d = [z, y, x]
-                            .iter()
-                            .map(|&q| (q as f64 - r as f64).powi(2))
-                            .sum::<f64>()
-                            .sqrt();
-                        best = best.min(d);
-                    }
-                }
-            }
-        }
-        if best <= r as f64 {
-            return Ok(best);
-        }
-        r *= 2;
-    }
 }
