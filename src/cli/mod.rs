@@ -19,14 +19,21 @@ use clap::{Parser, Subcommand, ValueEnum};
 ///
 /// The pipeline follows Gupta, Voruganti and Dasgupta ("Domain Mapping for Volumetric
 /// Parameterization using Harmonic Functions"). Each stage reads and writes a run
-/// directory (a Zarr v3 group, e.g. shape.harmap/) that napari, zarr-python and ParaView
-/// can open.
+/// directory (a Zarr v3 group with OME-Zarr images, e.g. shape.harmap/) that zarr-python
+/// and napari open.
 ///
 /// Example:
 ///   harmap voxelize spot.obj -o spot.harmap --resolution 128
 ///   harmap info spot.harmap
 #[derive(Parser, Debug)]
-#[command(name = "harmap", version, about, long_about, max_term_width = 100)]
+#[command(
+    name = "harmap",
+    version,
+    about,
+    long_about,
+    max_term_width = 100,
+    verbatim_doc_comment
+)]
 pub struct Cli {
     /// Worker threads (default: all cores). Results are the same for any count.
     #[arg(long, global = true, value_name = "N")]
