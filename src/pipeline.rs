@@ -69,8 +69,49 @@ pub fn voxelize_new_run(
         progress.warn(w);
     }
     let seconds = t0.elapsed().as_secs_f64();
-    // The grid is recorded once, at harmap.grid.
-    let mut result = serde_json::to_value(&report).expect("report");
+    record_voxelize(
+        &staging,
+        &report,
+        input_meta,
+        &serde_json::to_value(opts).expect("options"),
+        seconds,
+    )?;
+    let run = staging.commit()?;
+    Ok((run, report))
+}
+
+/// Write the standard problem (see [`voxelize::StandardBall`]) as a new run at `out`.
+pub fn standard_ball_run(
+    p: &voxelize::StandardBall,
+    out: &Path,
+    force: bool,
+    progress: &dyn Progress,
+) -> Result<(RunDir, VoxelizeReport), crate::Error> {
+    let t0 = Instant::now();
+    let staging = Staging::begin(out, force)?;
+    let report = voxelize::standard_ball(p, staging.run(), progress)?;
+    let input =
+        json!({"path": null, "builtin": "standard-ball", "sha256": null, "format": "builtin"});
+    record_voxelize(
+        &staging,
+        &report,
+        input,
+        &serde_json::to_value(p).expect("options"),
+        t0.elapsed().as_secs_f64(),
+    )?;
+    Ok((staging.commit()?, report))
+}
+
+/// Record a finished voxelization in the run's attributes: the grid (once, at
+/// `harmap.grid`), the center, the input, and the stage with its options and result.
+fn record_voxelize(
+    staging: &Staging,
+    report: &VoxelizeReport,
+    input: Value,
+    options: &Value,
+    seconds: f64,
+) -> Result<(), crate::Error> {
+    let mut result = serde_json::to_value(report).expect("report");
     if let Some(o) = result.as_object_mut() {
         o.remove("grid");
     }
@@ -81,15 +122,10 @@ pub fn voxelize_new_run(
         );
         a.insert("center".into(), json!(report.center));
         a.insert("center_voxel".into(), json!(report.center_voxel));
-        a.insert("input".into(), input_meta);
+        a.insert("input".into(), input);
         let stages = a.entry("stages").or_insert_with(|| json!({}));
-        stages["voxelize"] = json!({
-            "status": "done",
-            "seconds": seconds,
-            "options": opts,
-            "result": result,
-        });
+        stages["voxelize"] =
+            json!({"status": "done", "seconds": seconds, "options": options, "result": result});
     })?;
-    let run = staging.commit()?;
-    Ok((run, report))
+    Ok(())
 }

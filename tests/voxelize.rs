@@ -476,3 +476,61 @@ fn zarr_and_gzipped_raw_label_volumes_give_the_same_labels() {
         "{e}"
     );
 }
+
+#[test]
+fn standard_ball_has_the_analytic_labels() {
+    use harmap::grid::MemBudget;
+    use harmap::pipeline::standard_ball_run;
+    use harmap::voxelize::StandardBall;
+    for (n, sink) in [(32u64, 2.0), (33, 2.0), (40, 4.0)] {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("ball.harmap");
+        let p = StandardBall {
+            n,
+            sink_radius: sink,
+            chunk: 16,
+            mem: MemBudget::default(),
+        };
+        let (_, r) = standard_ball_run(&p, &out, false, &Silent).unwrap();
+        assert_eq!(
+            (r.components, r.genus, r.euler_characteristic),
+            (1, 0, 1),
+            "N = {n}"
+        );
+        let c = (n as f64 - 1.0) / 2.0;
+        let (spec, lab) = read_labels(&out);
+        assert_eq!(spec.shape, [n; 3]);
+        let (mut solid, mut sinks) = (0u64, 0u64);
+        for z in 0..n {
+            for y in 0..n {
+                for x in 0..n {
+                    let d = ([z, y, x]
+                        .iter()
+                        .map(|&q| (q as f64 - c).powi(2))
+                        .sum::<f64>())
+                    .sqrt();
+                    let l = lab[((z * n + y) * n + x) as usize];
+                    solid += u64::from(d <= 0.45 * n as f64);
+                    sinks += u64::from(d <= sink + 1e-9);
+                    assert_eq!(
+                        matches!(l, 1..=3),
+                        d <= 0.45 * n as f64,
+                        "N = {n}, voxel {z},{y},{x}"
+                    );
+                    assert_eq!(
+                        l == labels::CENTER,
+                        d <= sink + 1e-9,
+                        "N = {n}, voxel {z},{y},{x}"
+                    );
+                }
+            }
+        }
+        assert_eq!(r.counts[1] + r.counts[2] + r.counts[3], solid);
+        assert_eq!(r.counts[labels::CENTER as usize], sinks);
+        assert!(
+            (r.center_depth - 0.45 * n as f64).abs() < 2.0,
+            "depth {}",
+            r.center_depth
+        );
+    }
+}

@@ -19,19 +19,26 @@ pub const HALO: usize = 4;
 /// The center ball: voxels within `radius` voxels of `voxel`.
 #[derive(Clone, Copy, Debug)]
 pub struct CenterBall {
-    /// Center voxel `[z, y, x]`.
-    pub voxel: Idx3,
+    /// Center in voxel coordinates `[z, y, x]` (a voxel index, or between voxels).
+    pub center: [f64; 3],
     /// Radius in voxels.
     pub radius: f64,
 }
 
 impl CenterBall {
+    /// The ball around voxel `v`.
+    #[must_use]
+    pub fn at_voxel(v: Idx3, radius: f64) -> Self {
+        Self {
+            center: v.map(|c| c as f64),
+            radius,
+        }
+    }
+
     /// Whether voxel `g` lies in the ball.
     #[must_use]
     pub fn contains(&self, g: [i64; 3]) -> bool {
-        let d2: f64 = (0..3)
-            .map(|a| ((g[a] - self.voxel[a] as i64) as f64).powi(2))
-            .sum();
+        let d2: f64 = (0..3).map(|a| (g[a] as f64 - self.center[a]).powi(2)).sum();
         d2 <= self.radius * self.radius + 1e-9
     }
 }
@@ -39,7 +46,7 @@ impl CenterBall {
 /// Whether the center ball may reach the block at `start` of extent `s`.
 fn ball_near(ball: &CenterBall, start: [u64; 3], s: [usize; 3]) -> bool {
     (0..3).all(|a| {
-        let c = ball.voxel[a] as f64;
+        let c = ball.center[a];
         c + ball.radius >= start[a] as f64 && c - ball.radius <= (start[a] as usize + s[a]) as f64
     })
 }

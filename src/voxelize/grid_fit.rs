@@ -11,7 +11,8 @@ pub const MAX_AXIS: u64 = 1 << 15;
 /// The smallest padding: four exterior layers plus one free voxel.
 pub const MIN_PADDING: u64 = 5;
 
-fn check(shape: [u64; 3], what: &str) -> Result<(), VoxelizeError> {
+/// Refuse a grid larger than harmap handles, naming what asked for it.
+pub fn check_shape(shape: [u64; 3], what: &str) -> Result<(), VoxelizeError> {
     let total = shape.iter().try_fold(1u64, |acc, &n| acc.checked_mul(n));
     if shape.iter().any(|&n| n > MAX_AXIS) || total.is_none_or(|t| t > MAX_VOXELS) {
         return Err(VoxelizeError::Options(format!(
@@ -75,11 +76,11 @@ pub fn fit_bbox(lo: Vec3, hi: Vec3, o: &VoxelizeOptions) -> Result<GridSpec, Vox
     };
     let n = extent.to_array().map(|e| ((e / h) - 1e-9).ceil().max(1.0));
     if n.iter().any(|&c| c > MAX_AXIS as f64) {
-        check([u64::MAX; 3], &what)?;
+        check_shape([u64::MAX; 3], &what)?;
     }
     let shape_xyz = n.map(|c| c as u64 + 2 * o.padding);
     let shape = [shape_xyz[2], shape_xyz[1], shape_xyz[0]];
-    check(shape, &what)?;
+    check_shape(shape, &what)?;
     let mid = (lo + hi) * 0.5;
     let origin = [0, 1, 2].map(|a| mid[a] - (shape_xyz[a] - 1) as f64 * 0.5 * h);
     Ok(GridSpec {
@@ -107,7 +108,7 @@ pub fn fit_volume(shape: [u64; 3], o: &VoxelizeOptions) -> Result<GridSpec, Voxe
         )));
     }
     let padded = shape.map(|n| n + 2 * o.padding);
-    check(padded, "the label volume with its padding")?;
+    check_shape(padded, "the label volume with its padding")?;
     let p = -(o.padding as f64) * h;
     Ok(GridSpec {
         shape: padded,

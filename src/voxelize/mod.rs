@@ -17,6 +17,7 @@ mod euler;
 mod from_volume;
 mod grid_fit;
 mod scanline;
+mod standard;
 
 use std::time::Instant;
 
@@ -26,6 +27,7 @@ pub use classify::CenterBall;
 pub use error::VoxelizeError;
 pub use grid_fit::{fit_bbox, fit_volume, DEFAULT_RESOLUTION, MAX_AXIS, MAX_VOXELS, MIN_PADDING};
 pub use scanline::InsideRule;
+pub use standard::{standard_ball, StandardBall};
 
 use crate::grid::{BlockStore, Compression, GridSpec, MemBudget, MemStore, MmapStore};
 use crate::input::Shape;
@@ -158,7 +160,7 @@ pub struct VoxelizeReport {
 }
 
 /// Bytes a worker of the label pass holds (haloed block, distances, output, codec).
-fn label_worker_bytes(chunk: u64) -> u64 {
+pub(crate) fn label_worker_bytes(chunk: u64) -> u64 {
     let h = chunk + 2 * classify::HALO as u64;
     3 * h * h * h + 3 * chunk * chunk * chunk
 }
@@ -303,18 +305,7 @@ pub fn voxelize(
     }
 
     let scratch_dir = run.root().join(".scratch");
-    std::fs::create_dir_all(&scratch_dir).map_err(|e| crate::grid::GridError::Io {
-        path: scratch_dir.clone(),
-        source: e,
-    })?;
-    let solid: Box<dyn BlockStore<u8>> = if in_memory {
-        Box::new(MemStore::<u8>::new(spec.clone(), 0))
-    } else {
-        Box::new(MmapStore::<u8>::create(
-            &scratch_dir.join("solid.u8"),
-            spec.clone(),
-        )?)
-    };
+    let solid = scratch_grid(&scratch_dir, &spec, in_memory)?;
     let solid = &*solid;
 
     // 1. Solid occupancy.
@@ -473,10 +464,7 @@ pub fn voxelize(
 
     // 5. Labels.
     let labels = run.create_image::<u8>("labels", &spec, 0, Compression::Zstd(3))?;
-    let ball = CenterBall {
-        voxel: center_voxel,
-        radius: opts.center_radius,
-    };
+    let ball = CenterBall::at_voxel(center_voxel, opts.center_radius);
     let counts = classify::classify(solid, &labels, ball, w_label, progress)?;
     lap("labels", &mut t);
     let _ = std::fs::remove_dir_all(&scratch_dir);
@@ -504,6 +492,27 @@ pub fn voxelize(
         warnings,
         timings,
     })
+}
+
+/// The intermediate solid grid: in memory, or a memory-mapped file in `dir` (which is
+/// created either way).
+pub(crate) fn scratch_grid(
+    dir: &std::path::Path,
+    spec: &GridSpec,
+    in_memory: bool,
+) -> Result<Box<dyn BlockStore<u8>>, crate::Error> {
+    // The directory also holds the distance transform's slices, so make it either way.
+    std::fs::create_dir_all(dir).map_err(|e| crate::grid::GridError::Io {
+        path: dir.to_owned(),
+        source: e,
+    })?;
+    if in_memory {
+        return Ok(Box::new(MemStore::<u8>::new(spec.clone(), 0)));
+    }
+    Ok(Box::new(MmapStore::<u8>::create(
+        &dir.join("solid.u8"),
+        spec.clone(),
+    )?))
 }
 
 /// Check that every voxel of the center ball is solid and not on the boundary, given
@@ -538,7 +547,7 @@ fn check_center_ball(
     }
     let r = radius.ceil() as i64 + 1;
     let n = (2 * r + 1) as usize;
-    let ball = CenterBall { voxel: c, radius };
+    let ball = CenterBall::at_voxel(c, radius);
     let ci = c.map(|v| v as i64);
     for dz in -r + 1..r {
         let slab = solid.read_region([ci[0] + dz - 1, ci[1] - r, ci[2] - r], [3, n, n], 0)?;
