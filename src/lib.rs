@@ -15,6 +15,7 @@ pub mod math;
 pub mod pipeline;
 pub mod progress;
 pub mod run;
+pub mod solve;
 pub mod voxelize;
 
 mod error;

@@ -1,0 +1,55 @@
+//! Dirichlet conditions of the paper (section 5, step 4), by label.
+
+use crate::voxelize::labels::{BOUNDARY, CENTER, EXTERIOR, INTERIOR, LAYER1};
+
+/// What phi is at a voxel.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Node {
+    /// An unknown of the linear system (interior voxel).
+    Unknown,
+    /// Held fixed: 1 on the boundary, 0 in the center ball, `1 + k eps` on exterior
+    /// layer k.
+    Fixed(f64),
+    /// Not part of the problem (exterior beyond the layers): phi is NaN there.
+    Outside,
+}
+
+/// The node a voxel of label `label` is, with layer spacing `eps` (the paper's 1e-4).
+#[must_use]
+pub fn node(label: u8, eps: f64) -> Node {
+    match label {
+        INTERIOR => Node::Unknown,
+        BOUNDARY => Node::Fixed(1.0),
+        CENTER => Node::Fixed(0.0),
+        EXTERIOR => Node::Outside,
+        k => Node::Fixed(1.0 + f64::from(k - LAYER1 + 1) * eps),
+    }
+}
+
+/// The starting value of phi at a voxel: the fixed value, NaN outside, and for unknowns
+/// 1 (the value that holds over most of the domain; the paper starts from random values,
+/// which only slows the first sweeps).
+#[must_use]
+pub fn initial(label: u8, eps: f64) -> f64 {
+    match node(label, eps) {
+        Node::Unknown => 1.0,
+        Node::Fixed(v) => v,
+        Node::Outside => f64::NAN,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn labels_map_to_the_papers_conditions() {
+        assert_eq!(node(BOUNDARY, 1e-4), Node::Fixed(1.0));
+        assert_eq!(node(CENTER, 1e-4), Node::Fixed(0.0));
+        assert_eq!(node(INTERIOR, 1e-4), Node::Unknown);
+        assert_eq!(node(EXTERIOR, 1e-4), Node::Outside);
+        assert_eq!(node(LAYER1, 0.5), Node::Fixed(1.5));
+        assert_eq!(node(LAYER1 + 3, 0.5), Node::Fixed(3.0));
+        assert!(initial(EXTERIOR, 1e-4).is_nan());
+    }
+}
