@@ -18,7 +18,7 @@ pub use budget::{human, MemBudget, BASE_BYTES};
 pub use memory::MemStore;
 pub use mmap::MmapStore;
 pub use spec::GridSpec;
-pub use store::{BlockStore, GridError, Scalar};
+pub use store::{fill_with, BlockStore, GridError, Scalar};
 pub use zarr::{fs_store, Compression, ZarrStore};
 
 #[cfg(test)]
@@ -49,20 +49,8 @@ mod tests {
             serde_json::Map::new(),
         )
         .unwrap();
-        for b in spec.block_indices() {
-            let st = spec.block_start(b);
-            let sh = spec.block_shape(b);
-            let mut v = Vec::new();
-            for z in 0..sh[0] {
-                for y in 0..sh[1] {
-                    for x in 0..sh[2] {
-                        v.push(value(st[0] + z, st[1] + y, st[2] + x));
-                    }
-                }
-            }
-            mem.write_block(b, &v).unwrap();
-            mm.write_block(b, &v).unwrap();
-            zs.write_block(b, &v).unwrap();
+        for st in [&mem as &dyn BlockStore<u16>, &mm, &zs] {
+            fill_with(st, 2, |[z, y, x]| value(z, y, x)).unwrap();
         }
         let stores: [&dyn BlockStore<u16>; 3] = [&mem, &mm, &zs];
         let boxes = [

@@ -176,3 +176,27 @@ pub(crate) fn check_block<T>(
     }
     Ok(())
 }
+
+/// Write every block of `store` from `value(voxel)` (voxel `[z, y, x]`), with at most
+/// `workers` blocks in flight.
+pub fn fill_with<T: Scalar>(
+    store: &dyn BlockStore<T>,
+    workers: usize,
+    value: impl Fn(Idx3) -> T + Sync + Send,
+) -> Result<(), GridError> {
+    let spec = store.spec();
+    crate::parallel::map_bounded(&spec.block_indices(), workers, |&b| {
+        let st = spec.block_start(b);
+        let sh = spec.block_shape(b);
+        let mut v = Vec::with_capacity(crate::math::volume(sh) as usize);
+        for z in st[0]..st[0] + sh[0] {
+            for y in st[1]..st[1] + sh[1] {
+                for x in st[2]..st[2] + sh[2] {
+                    v.push(value([z, y, x]));
+                }
+            }
+        }
+        store.write_block(b, &v)
+    })?;
+    Ok(())
+}

@@ -52,7 +52,7 @@ mod tests {
 
     fn store_with(
         shape: [u64; 3],
-        solid: impl Fn(u64, u64, u64) -> bool,
+        solid: impl Fn(u64, u64, u64) -> bool + Sync + Send,
     ) -> (tempfile::TempDir, MmapStore<u8>) {
         let dir = tempfile::tempdir().unwrap();
         let spec = GridSpec {
@@ -63,19 +63,7 @@ mod tests {
             unit: None,
         };
         let s = MmapStore::<u8>::create(&dir.path().join("s"), spec.clone()).unwrap();
-        for b in spec.block_indices() {
-            let st = spec.block_start(b);
-            let sh = spec.block_shape(b);
-            let mut v = Vec::new();
-            for z in 0..sh[0] {
-                for y in 0..sh[1] {
-                    for x in 0..sh[2] {
-                        v.push(u8::from(solid(st[0] + z, st[1] + y, st[2] + x)));
-                    }
-                }
-            }
-            s.write_block(b, &v).unwrap();
-        }
+        crate::grid::fill_with(&s, 1, |[z, y, x]| u8::from(solid(z, y, x))).unwrap();
         (dir, s)
     }
 

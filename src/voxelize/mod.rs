@@ -352,7 +352,7 @@ pub fn voxelize(
     lap("cavities", &mut t);
 
     // 3. Pieces and genus.
-    let mut pieces = components::find(
+    let pieces = components::find(
         solid,
         |v| v == 1,
         w_ccl,
@@ -367,7 +367,7 @@ pub fn voxelize(
         }
         .into());
     }
-    let (mut pieces_removed, mut removed_voxels) = (0, 0);
+    let (mut pieces_removed, mut removed_voxels) = (0u64, 0);
     if pieces.sizes.len() > 1 && opts.keep_largest {
         let largest = (0..pieces.sizes.len())
             .max_by_key(|&i| (pieces.sizes[i], std::cmp::Reverse(i)))
@@ -385,16 +385,13 @@ pub fn voxelize(
             "kept the largest of {} pieces; removed {removed_voxels} voxels",
             pieces_removed + 1
         ));
-        pieces = components::find(
-            solid,
-            |v| v == 1,
-            w_ccl,
-            ccl_limit,
-            "voxelize: components",
-            progress,
-        )?;
     }
-    let ncomp = pieces.sizes.len() as u64;
+    // After --keep-largest exactly one piece is left.
+    let ncomp = if pieces_removed > 0 {
+        1
+    } else {
+        pieces.sizes.len() as u64
+    };
     let chi = euler::euler_characteristic(solid, w_ccl)?;
     let genus = ncomp as i64 - chi;
     lap("topology", &mut t);

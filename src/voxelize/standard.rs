@@ -13,7 +13,6 @@ use serde::{Deserialize, Serialize};
 
 use super::{classify, components, euler, CenterBall, VoxelizeError, VoxelizeReport};
 use crate::grid::{Compression, GridSpec, MemBudget};
-use crate::parallel::map_bounded;
 use crate::progress::Progress;
 use crate::run::RunDir;
 
@@ -81,24 +80,9 @@ pub fn standard_ball(
     let scratch = run.root().join(".scratch");
     let solid = super::scratch_grid(&scratch, &spec, in_memory)?;
     let solid = &*solid;
-    let blocks = spec.block_indices();
-    map_bounded(&blocks, workers, |&b| -> Result<(), crate::Error> {
-        let st = spec.block_start(b);
-        let sh = spec.block_shape(b);
-        let mut v = Vec::with_capacity((sh[0] * sh[1] * sh[2]) as usize);
-        for z in st[0]..st[0] + sh[0] {
-            for y in st[1]..st[1] + sh[1] {
-                for x in st[2]..st[2] + sh[2] {
-                    let d2 = [z, y, x]
-                        .iter()
-                        .map(|&q| (q as f64 - c).powi(2))
-                        .sum::<f64>();
-                    v.push(u8::from(d2 <= radius * radius));
-                }
-            }
-        }
-        solid.write_block(b, &v)?;
-        Ok(())
+    crate::grid::fill_with(solid, workers, |v| {
+        let d2 = v.iter().map(|&q| (q as f64 - c).powi(2)).sum::<f64>();
+        u8::from(d2 <= radius * radius)
     })?;
     let limit = p.mem.work_bytes().saturating_sub(held);
     let pieces = components::find(
