@@ -4,4 +4,5 @@ mod cli;
 mod common;
 mod interop;
 mod meshes;
+mod solve;
 mod voxelize;

@@ -90,6 +90,9 @@ pub enum GridError {
         /// Blocks per axis.
         blocks: Idx3,
     },
+    /// Grids that must share their shape and blocks do not.
+    #[error("grids do not match: {0}")]
+    Mismatch(String),
     /// The memory budget cannot hold what a stage needs.
     #[error(
         "memory budget {budget} is too small: {what} needs {needed}; use --mem {suggest} or more"
