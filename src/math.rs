@@ -14,10 +14,3 @@ pub type Idx3 = [u64; 3];
 pub fn volume(shape: Idx3) -> u64 {
     shape[0] * shape[1] * shape[2]
 }
-
-/// Linear offset of `(z, y, x)` in a C-order box of `shape`.
-#[inline]
-#[must_use]
-pub fn linear(shape: [usize; 3], z: usize, y: usize, x: usize) -> usize {
-    (z * shape[1] + y) * shape[2] + x
-}

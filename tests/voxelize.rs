@@ -368,7 +368,7 @@ fn label_volume_input_keeps_its_voxels() {
 
 #[test]
 fn zarr_and_gzipped_raw_label_volumes_give_the_same_labels() {
-    use harmap::grid::{BlockStore, Compression, GridSpec, ZarrStore};
+    use harmap::grid::{fill_with, Compression, GridSpec, ZarrStore};
     use std::io::Write;
     let dir = tempfile::tempdir().unwrap();
     let shape = [14u64, 18, 16];
@@ -400,24 +400,8 @@ fn zarr_and_gzipped_raw_label_volumes_give_the_same_labels() {
         serde_json::Map::new(),
     )
     .unwrap();
+    fill_with(&z, 1, |[k, j, i]| if inside(k, j, i) { 5 } else { 0 }).unwrap();
     let mut raw = Vec::new();
-    for b in spec.block_indices() {
-        let st = spec.block_start(b);
-        let sh = spec.block_shape(b);
-        let mut v = Vec::new();
-        for k in 0..sh[0] {
-            for j in 0..sh[1] {
-                for i in 0..sh[2] {
-                    v.push(if inside(st[0] + k, st[1] + j, st[2] + i) {
-                        5
-                    } else {
-                        0
-                    });
-                }
-            }
-        }
-        z.write_block(b, &v).unwrap();
-    }
     for k in 0..shape[0] {
         for j in 0..shape[1] {
             for i in 0..shape[2] {

@@ -47,12 +47,6 @@ impl<T: Scalar> MmapStore<T> {
         })
     }
 
-    /// The scratch file.
-    #[must_use]
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-
     fn chunk_bytes(&self) -> u64 {
         volume(self.spec.chunk) * T::SIZE as u64
     }

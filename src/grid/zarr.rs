@@ -118,12 +118,6 @@ impl<T: Scalar> ZarrStore<T> {
             options,
         }
     }
-
-    /// The fill value.
-    #[must_use]
-    pub fn fill(&self) -> T {
-        self.fill
-    }
 }
 
 impl<T: Scalar> BlockStore<T> for ZarrStore<T> {

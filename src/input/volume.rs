@@ -195,12 +195,6 @@ impl LabelVolume {
         }
     }
 
-    /// The file or directory read.
-    #[must_use]
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-
     /// Elements per axis `[z, y, x]`.
     #[must_use]
     pub fn shape(&self) -> [u64; 3] {

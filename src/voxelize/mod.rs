@@ -472,13 +472,7 @@ pub fn voxelize(
         counts,
         center_voxel,
         center_depth: depth,
-        inside_rule: rule.map_or("volume".into(), |r| {
-            serde_json::to_value(r)
-                .expect("enum")
-                .as_str()
-                .unwrap_or("")
-                .to_owned()
-        }),
+        inside_rule: rule.map_or("volume", InsideRule::name).to_owned(),
         euler_characteristic: chi,
         components: ncomp,
         genus,

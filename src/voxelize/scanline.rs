@@ -23,8 +23,7 @@ use crate::parallel::map_bounded;
 use crate::progress::Progress;
 
 /// How crossings along a row decide inside.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum InsideRule {
     /// Non-zero winding number (closed, consistently oriented surfaces).
     Winding,
@@ -34,6 +33,17 @@ pub enum InsideRule {
 
 /// Inclusive row ranges `((y0, y1), (z0, z1))` a triangle may cross.
 type RowRanges = ((u64, u64), (u64, u64));
+
+impl InsideRule {
+    /// The rule's name, as recorded in the run.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            InsideRule::Winding => "winding",
+            InsideRule::Parity => "parity",
+        }
+    }
+}
 
 /// A triangle prepared for row tests: projected (y, z) corners and their x.
 #[derive(Clone, Copy)]
