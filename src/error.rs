@@ -15,6 +15,9 @@ pub enum Error {
     /// Voxelization failed or found a shape it cannot use.
     #[error(transparent)]
     Voxelize(#[from] crate::voxelize::VoxelizeError),
+    /// The solve failed, was interrupted, or cannot resume.
+    #[error(transparent)]
+    Solve(#[from] crate::solve::SolveError),
 }
 
 impl Error {
@@ -27,6 +30,7 @@ impl Error {
             Error::Grid(e) => matches!(e, crate::grid::GridError::Budget { .. }),
             Error::Run(e) => e.is_bad_input(),
             Error::Voxelize(e) => e.is_bad_input(),
+            Error::Solve(e) => e.is_bad_input(),
         }
     }
 }

@@ -7,6 +7,18 @@ pub trait Progress: Send + Sync {
     fn start(&self, name: &str, total: u64);
     /// `n` more units of the current phase are done.
     fn advance(&self, n: u64);
+    /// The current phase's total changed (e.g. a new estimate of iterations left).
+    fn set_total(&self, total: u64) {
+        let _ = total;
+    }
+    /// The current phase has done `pos` units.
+    fn set_position(&self, pos: u64) {
+        let _ = pos;
+    }
+    /// Show `message` with the current phase (e.g. the residual).
+    fn message(&self, message: &str) {
+        let _ = message;
+    }
     /// The current phase is done.
     fn finish(&self);
     /// A warning for the user (printed whatever the verbosity).

@@ -1,133 +1,414 @@
-//! The out-of-core relaxation on the standard problem: blocked sweeps equal the
-//! unblocked one bit for bit, for any thread count and backend, and converge.
+//! The solve stage on the standard problem: accuracy against the analytic solution,
+//! agreement of the three methods and of a direct solve, grid independence of
+//! multigrid, determinism, checkpoints and resume.
 
-use harmap::grid::{fill_with, BlockStore, GridSpec, MemBudget, MemStore, MmapStore};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+
+use harmap::grid::{BlockStore, MemBudget};
 use harmap::pipeline::standard_ball_run;
 use harmap::progress::Silent;
-use harmap::solve::relax::{initialize, relax_sor, RelaxOptions, StopReason};
+use harmap::run::RunDir;
+use harmap::solve::driver::{Method, StopReason};
+use harmap::solve::{solve, SolveOptions, SolveReport};
+use harmap::voxelize::labels::{BOUNDARY, CENTER, EXTERIOR, INTERIOR};
 use harmap::voxelize::StandardBall;
 
 use crate::common::read_labels;
 
-/// The standard problem's labels at N, as a store with blocks of `chunk`.
-fn labels(n: u64, chunk: u64) -> (GridSpec, MemStore<u8>) {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("ball.harmap");
+/// A standard-problem run at N with the given sink radius and block edge.
+fn ball(dir: &Path, n: u64, sink: f64, chunk: u64) -> PathBuf {
+    let out = dir.join(format!("ball{n}-{sink}-{chunk}.harmap"));
     let p = StandardBall {
         n,
-        sink_radius: 2.0,
-        chunk: 16,
+        sink_radius: sink,
+        chunk,
         mem: MemBudget::default(),
     };
-    standard_ball_run(&p, &out, false, &Silent).unwrap();
-    let (mut spec, lab) = read_labels(&out);
-    spec.chunk = [chunk; 3];
-    let store = MemStore::new(spec.clone(), 0u8);
-    fill_with(&store, 1, |[z, y, x]| lab[((z * n + y) * n + x) as usize]).unwrap();
-    (spec, store)
+    standard_ball_run(&p, &out, true, &Silent).unwrap();
+    out
 }
 
-fn whole(store: &dyn BlockStore<f64>) -> Vec<u64> {
-    let s = store.spec().shape.map(|c| c as usize);
-    store
-        .read_region([0, 0, 0], s, 0.0)
-        .unwrap()
-        .data
-        .iter()
-        .map(|v| v.to_bits())
-        .collect()
+fn run_solve(run: &Path, opts: &SolveOptions) -> SolveReport {
+    let r = RunDir::open(run).unwrap();
+    solve(&r, opts, &AtomicBool::new(false), &Silent).unwrap()
 }
 
-fn relax(
-    lab: &dyn BlockStore<u8>,
-    a: &dyn BlockStore<f64>,
-    b: &dyn BlockStore<f64>,
-    iters: u64,
-    threads: usize,
-) -> Vec<u64> {
-    let opts = RelaxOptions {
-        rtol: 0.0,
-        max_iter: iters,
-        ..RelaxOptions::default()
-    };
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .unwrap();
-    pool.install(|| {
-        initialize(lab, a, opts.eps, usize::MAX).unwrap();
-        relax_sor(lab, a, b, &opts, &Silent).unwrap();
-    });
-    whole(a)
+fn read_phi(run: &Path) -> Vec<f64> {
+    let r = RunDir::open(run).unwrap();
+    let s = r.open_image::<f64>("phi").unwrap();
+    let shape = s.spec().shape.map(|c| c as usize);
+    s.read_region([0, 0, 0], shape, f64::NAN).unwrap().data
+}
+
+fn opts(method: Method, rtol: f64) -> SolveOptions {
+    SolveOptions {
+        method,
+        rtol,
+        max_iter: 200_000,
+        ..SolveOptions::default()
+    }
+}
+
+fn max_diff(a: &[f64], b: &[f64], labels: &[u8]) -> f64 {
+    a.iter()
+        .zip(b)
+        .zip(labels)
+        .filter(|(_, &l)| l == INTERIOR)
+        .map(|((x, y), _)| (x - y).abs())
+        .fold(0.0, f64::max)
 }
 
 #[test]
-fn blocked_sweeps_equal_the_unblocked_sweep_bit_for_bit() {
-    let n = 28;
-    let (spec1, one_block) = labels(n, 32);
-    let (spec8, blocks) = labels(n, 8);
-    let reference = relax(
-        &one_block,
-        &MemStore::new(spec1.clone(), 0.0),
-        &MemStore::new(spec1, 0.0),
-        25,
-        1,
-    );
-    let blocked = relax(
-        &blocks,
-        &MemStore::new(spec8.clone(), 0.0),
-        &MemStore::new(spec8.clone(), 0.0),
-        25,
-        2,
-    );
-    assert_eq!(reference, blocked);
+fn concentric_spheres_error_falls_with_refinement() {
+    // phi(r) = (1/r0 - 1/r) / (1/r0 - 1/R) between the sink (r0 = 0.1 N) and the
+    // boundary (R = 0.45 N). The staircased spheres make the pointwise error near them
+    // O(h) in the solution's units; the error over the interior falls as N doubles.
     let dir = tempfile::tempdir().unwrap();
-    let a = MmapStore::<f64>::create(&dir.path().join("g0"), spec8.clone()).unwrap();
-    let b = MmapStore::<f64>::create(&dir.path().join("g1"), spec8).unwrap();
-    assert_eq!(
-        reference,
-        relax(&blocks, &a, &b, 25, 1),
-        "memory-mapped generations, 1 thread"
-    );
+    let mut errs = Vec::new();
+    for n in [32u64, 64, 96] {
+        let run = ball(dir.path(), n, 0.1 * n as f64, 32);
+        let rep = run_solve(&run, &opts(Method::Multigrid, 1e-10));
+        assert_eq!(rep.stopped_by, StopReason::Residual);
+        let phi = read_phi(&run);
+        let (_, labels) = read_labels(&run);
+        let c = (n as f64 - 1.0) / 2.0;
+        let (r0, big_r) = (0.1 * n as f64, 0.45 * n as f64);
+        let (mut max, mut sum, mut cnt) = (0.0f64, 0.0, 0.0);
+        let nu = n as usize;
+        for (i, &l) in labels.iter().enumerate() {
+            if l != INTERIOR {
+                continue;
+            }
+            let (z, y, x) = (i / (nu * nu), (i / nu) % nu, i % nu);
+            let r = [z, y, x]
+                .iter()
+                .map(|&v| (v as f64 - c).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            let exact = (1.0 / r0 - 1.0 / r) / (1.0 / r0 - 1.0 / big_r);
+            let e = (phi[i] - exact).abs();
+            max = max.max(e);
+            sum += e;
+            cnt += 1.0;
+        }
+        errs.push((n, max, sum / cnt));
+    }
+    eprintln!("N, max error, mean error: {errs:?}");
+    for w in errs.windows(2) {
+        assert!(w[1].1 < w[0].1, "max error did not fall: {errs:?}");
+        assert!(w[1].2 < 0.75 * w[0].2, "mean error did not fall: {errs:?}");
+    }
+    assert!(errs[2].1 < 0.1 && errs[2].2 < 0.01, "{errs:?}");
 }
 
 #[test]
-fn relaxation_converges_on_the_standard_problem() {
-    let (spec, lab) = labels(24, 8);
-    let (a, b) = (
-        MemStore::new(spec.clone(), 0.0),
-        MemStore::new(spec.clone(), 0.0),
-    );
-    let opts = RelaxOptions {
-        rtol: 1e-8,
-        ..RelaxOptions::default()
+fn multigrid_sor_and_jacobi_agree_when_converged() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, labels) = read_labels(&ball(dir.path(), 24, 2.0, 16));
+    let mut answers = Vec::new();
+    for m in [Method::Multigrid, Method::Sor, Method::Jacobi] {
+        let run = ball(dir.path(), 24, 2.0, 16);
+        let rep = run_solve(&run, &opts(m, 1e-11));
+        assert_eq!(rep.stopped_by, StopReason::Residual, "{m:?}");
+        assert!(rep.relative_residual < 1e-11);
+        answers.push((m, rep.iterations, read_phi(&run)));
+    }
+    for (m, it, phi) in &answers[1..] {
+        let d = max_diff(&answers[0].2, phi, &labels);
+        assert!(
+            d < 1e-7,
+            "{m:?} ({it} iterations) differs from multigrid by {d}"
+        );
+    }
+    // Multigrid needs far fewer iterations than SOR, which needs far fewer than Jacobi.
+    assert!(answers[0].1 * 5 < answers[1].1 && answers[1].1 * 5 < answers[2].1);
+}
+
+/// Solve the 7-point system on the unknowns directly (dense Cholesky).
+fn direct_solve(labels: &[u8], n: usize, eps: f64) -> Vec<f64> {
+    let idx: Vec<Option<usize>> = {
+        let mut k = 0;
+        labels
+            .iter()
+            .map(|&l| {
+                (l == INTERIOR).then(|| {
+                    k += 1;
+                    k - 1
+                })
+            })
+            .collect()
     };
-    initialize(&lab, &a, opts.eps, usize::MAX).unwrap();
-    let r = relax_sor(&lab, &a, &b, &opts, &Silent).unwrap();
-    assert_eq!(r.stopped_by, StopReason::Residual);
-    assert!(r.iterations < 200, "{} iterations", r.iterations);
-    assert!(*r.residual_history.last().unwrap() < 1e-8);
-    let phi = a.read_region([0, 0, 0], [24; 3], 0.0).unwrap().data;
-    let l = lab.read_region([0, 0, 0], [24; 3], 0).unwrap().data;
-    for (p, &l) in phi.iter().zip(&l) {
-        match l {
-            0 => assert!(p.is_nan()),
-            // Fixed values are never touched: bit for bit.
-            1 => assert_eq!(p.to_bits(), 1f64.to_bits()),
-            3 => assert_eq!(p.to_bits(), 0f64.to_bits()),
-            2 => assert!((0.0..=1.0).contains(p), "interior phi {p}"),
-            k => assert!((*p - (1.0 + f64::from(k - 3) * opts.eps)).abs() < 1e-15),
+    let m = idx.iter().flatten().count();
+    let mut a = vec![0.0f64; m * m];
+    let mut b = vec![0.0f64; m];
+    let fixed = |l: u8| match l {
+        BOUNDARY => 1.0,
+        CENTER => 0.0,
+        EXTERIOR => panic!("an unknown touches the exterior"),
+        k => 1.0 + f64::from(k - 3) * eps,
+    };
+    for (i, &l) in labels.iter().enumerate() {
+        let Some(r) = idx[i] else { continue };
+        assert_eq!(l, INTERIOR);
+        a[r * m + r] = 6.0;
+        for d in [1, n, n * n] {
+            for j in [i - d, i + d] {
+                match idx[j] {
+                    Some(c) => a[r * m + c] -= 1.0,
+                    None => b[r] += fixed(labels[j]),
+                }
+            }
         }
     }
-    // The paper's criterion alone, with a loose zeta, stops far earlier and farther from
-    // the answer: the reason the residual criterion exists.
-    let loose = RelaxOptions {
-        rtol: 0.0,
-        tol: 1e-3,
-        ..RelaxOptions::default()
-    };
-    initialize(&lab, &a, loose.eps, usize::MAX).unwrap();
-    let r2 = relax_sor(&lab, &a, &b, &loose, &Silent).unwrap();
-    assert_eq!(r2.stopped_by, StopReason::MaxChange);
-    assert!(r2.iterations < r.iterations && *r2.residual_history.last().unwrap() > 1e-8);
+    // Cholesky A = L L^T in place (lower triangle).
+    for j in 0..m {
+        let mut d = a[j * m + j];
+        for k in 0..j {
+            d -= a[j * m + k] * a[j * m + k];
+        }
+        let d = d.sqrt();
+        a[j * m + j] = d;
+        for i in j + 1..m {
+            let mut s = a[i * m + j];
+            for k in 0..j {
+                s -= a[i * m + k] * a[j * m + k];
+            }
+            a[i * m + j] = s / d;
+        }
+    }
+    for i in 0..m {
+        let mut s = b[i];
+        for k in 0..i {
+            s -= a[i * m + k] * b[k];
+        }
+        b[i] = s / a[i * m + i];
+    }
+    for i in (0..m).rev() {
+        let mut s = b[i];
+        for k in i + 1..m {
+            s -= a[k * m + i] * b[k];
+        }
+        b[i] = s / a[i * m + i];
+    }
+    idx.iter().map(|o| o.map_or(f64::NAN, |r| b[r])).collect()
+}
+
+#[test]
+fn multigrid_matches_a_direct_sparse_solve() {
+    // The same discrete system assembled independently and solved by elimination.
+    let dir = tempfile::tempdir().unwrap();
+    let run = ball(dir.path(), 16, 2.0, 8);
+    // A large eps so that the exterior layers' values matter to the answer.
+    let mut o = opts(Method::Multigrid, 1e-12);
+    o.eps = 5e-3;
+    run_solve(&run, &o);
+    let (_, labels) = read_labels(&run);
+    let direct = direct_solve(&labels, 16, 5e-3);
+    let phi = read_phi(&run);
+    let d = max_diff(&direct, &phi, &labels);
+    assert!(d < 1e-9, "multigrid vs direct: {d}");
+    // Outside the problem phi is NaN; fixed voxels hold their values.
+    for (l, p) in labels.iter().zip(&phi) {
+        match *l {
+            EXTERIOR => assert!(p.is_nan()),
+            BOUNDARY => assert_eq!(p.to_bits(), 1f64.to_bits()),
+            CENTER => assert_eq!(p.to_bits(), 0f64.to_bits()),
+            INTERIOR => assert!((0.0..=1.0).contains(p)),
+            k => assert_eq!(p.to_bits(), (1.0 + f64::from(k - 3) * 5e-3).to_bits()),
+        }
+    }
+}
+
+#[test]
+fn multigrid_cycles_do_not_grow_with_the_grid() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cycles = Vec::new();
+    for n in [32u64, 64, 96] {
+        let run = ball(dir.path(), n, 2.0, 32);
+        cycles.push(run_solve(&run, &opts(Method::Multigrid, 1e-6)).iterations);
+    }
+    let (lo, hi) = (cycles.iter().min().unwrap(), cycles.iter().max().unwrap());
+    assert!(
+        hi - lo <= 2 && *hi <= 10,
+        "cycles per N = 32, 64, 96: {cycles:?}"
+    );
+}
+
+#[test]
+fn max_change_criterion_stops_slow_iterations_far_from_the_answer() {
+    // The paper's zeta: Jacobi stops on a small change while the residual is still
+    // large, and its answer is far from the converged one.
+    let dir = tempfile::tempdir().unwrap();
+    let run = ball(dir.path(), 32, 2.0, 16);
+    let (_, labels) = read_labels(&run);
+    let mut o = opts(Method::Jacobi, 0.0);
+    o.tol = 1e-4;
+    let rep = run_solve(&run, &o);
+    assert_eq!(rep.stopped_by, StopReason::MaxChange);
+    let loose = read_phi(&run);
+    run_solve(&run, &opts(Method::Multigrid, 1e-10));
+    let d = max_diff(&loose, &read_phi(&run), &labels);
+    assert!(rep.relative_residual > 1e-3, "{}", rep.relative_residual);
+    assert!(d > 20.0 * o.tol, "error {d} with zeta {}", o.tol);
+}
+
+#[test]
+fn phi_is_the_same_bytes_for_any_thread_count_and_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut outs = Vec::new();
+    for (threads, mem) in [(1, "1GiB"), (2, "1GiB"), (2, "30MiB")] {
+        let run = ball(dir.path(), 80, 2.0, 16);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let mut o = opts(Method::Multigrid, 1e-8);
+        o.mem = mem.parse().unwrap();
+        let rep = pool.install(|| run_solve(&run, &o));
+        if mem == "30MiB" {
+            assert!(!rep.in_memory[0], "the small budget should put phi on disk");
+        }
+        let bits: Vec<u64> = read_phi(&run).iter().map(|v| v.to_bits()).collect();
+        outs.push((rep.iterations, rep.residual_history, bits));
+    }
+    assert_eq!(outs[0], outs[1], "1 vs 2 threads");
+    assert_eq!(outs[1], outs[2], "in memory vs memory-mapped scratch");
+}
+
+fn bin() -> std::process::Command {
+    std::process::Command::new(env!("CARGO_BIN_EXE_harmap"))
+}
+
+fn phi_bytes(run: &Path) -> Vec<u64> {
+    read_phi(run).iter().map(|v| v.to_bits()).collect()
+}
+
+/// A slow solve (Jacobi to a tight residual, checkpoints every 20 ms), so that kills land
+/// in the middle of it.
+fn slow_solve(run: &Path, resume: bool) -> std::process::Command {
+    slow_solve_every(run, resume, "0.02s")
+}
+
+fn slow_solve_every(run: &Path, resume: bool, every: &str) -> std::process::Command {
+    let mut c = bin();
+    c.args(["-q", "solve"])
+        .arg(run)
+        .args([
+            "--method",
+            "jacobi",
+            "--rtol",
+            "1e-9",
+            "--max-iter",
+            "100000",
+        ])
+        .args(["--checkpoint-every", every]);
+    if resume {
+        c.arg("--resume");
+    }
+    c
+}
+
+fn wait_for(p: &Path) {
+    let t = std::time::Instant::now();
+    while !p.exists() {
+        assert!(t.elapsed().as_secs() < 60, "{} never appeared", p.display());
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+}
+
+#[test]
+fn killed_three_times_and_resumed_gives_the_same_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let whole = ball(dir.path(), 40, 2.0, 16);
+    let o = slow_solve(&whole, false).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let expected = phi_bytes(&whole);
+
+    let run = ball(dir.path(), 40, 2.0, 16);
+    let manifest = run.join("solve/manifest.json");
+    // SIGKILL at three moments: right after the first checkpoint, a little later, and
+    // later still (some of them land while a checkpoint is being written).
+    for (k, extra_ms) in [0u64, 37, 151].into_iter().enumerate() {
+        let mut child = slow_solve(&run, k > 0).spawn().unwrap();
+        if k == 0 {
+            wait_for(&manifest);
+        }
+        std::thread::sleep(std::time::Duration::from_millis(extra_ms + 30));
+        let _ = child.kill(); // SIGKILL
+        let st = child.wait().unwrap();
+        assert!(!st.success() || run.join("phi").exists());
+        assert!(
+            !run.join("phi").exists(),
+            "finished before kill {k}; make it slower"
+        );
+    }
+    let o = slow_solve(&run, true).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(phi_bytes(&run), expected, "resumed phi differs");
+    let attrs = RunDir::open(&run).unwrap().attrs().unwrap();
+    assert!(
+        attrs
+            .pointer("/stages/solve/result/resumed_at")
+            .unwrap()
+            .as_u64()
+            .unwrap()
+            > 0
+    );
+    assert!(!run.join("solve").exists(), "solver state left behind");
+}
+
+#[test]
+fn sigint_checkpoints_and_exits_130_and_bad_resumes_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = ball(dir.path(), 40, 2.0, 16);
+    let child = slow_solve_every(&run, false, "0")
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    // SIGINT as Ctrl-C sends it.
+    let ok = std::process::Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    let o = child.wait_with_output().unwrap();
+    assert_eq!(
+        o.status.code(),
+        Some(130),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--resume"), "{err}");
+    assert!(run.join("solve/manifest.json").exists());
+    assert!(!run.join("phi").exists());
+
+    // Other options than the checkpoint's: refused with exit code 2.
+    let o = bin()
+        .args(["-q", "solve"])
+        .arg(&run)
+        .args(["--method", "sor", "--resume"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("other labels or other solve options"));
+
+    // A damaged newest generation: the previous checkpoint is used, or (with none) a
+    // clear refusal.
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("solve/manifest.json")).unwrap()).unwrap();
+    let g = run.join(format!("solve/g{}.bin", m["generation"]));
+    let mut bytes = std::fs::read(&g).unwrap();
+    bytes[100] ^= 0xff;
+    std::fs::write(&g, bytes).unwrap();
+    let o = slow_solve(&run, true).output().unwrap();
+    if run.join("solve/manifest.prev.json").exists() {
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        assert!(String::from_utf8_lossy(&o.stderr).contains("damaged"));
+    } else {
+        assert_eq!(o.status.code(), Some(2));
+        assert!(String::from_utf8_lossy(&o.stderr).contains("checksum mismatch"));
+    }
 }

@@ -13,13 +13,20 @@ use super::{Global, UsageError};
 
 /// Measure a stage: time, voxels per second and peak resident memory.
 ///
+/// `harmap bench solve` builds the standard problem (an N^3 grid, the ball of radius
+/// 0.45 N, phi = 0 within 2 voxels of the center) and solves it with multigrid to rtol
+/// 1e-6, from the labels to a stored phi: seconds, cycles, fine-grid sweep
+/// equivalents, voxel updates per second and peak memory.
+///
 /// `harmap bench voxelize` voxelizes a mesh (default: the armadillo of the project's
 /// test data when it is found, else the built-in starfish) at each --n and prints one
 /// line per size. Peak memory is the process's high-water mark (VmHWM), so run one size
 /// per process for a clean figure.
 ///
-/// Example:
+/// Examples:
 ///   harmap bench voxelize --n 256 --n 512 --input armadillo.obj.gz
+///   harmap bench solve --n 256
+///   harmap bench solve --n 512 --mem 256MiB
 #[derive(clap::Args, Debug)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
@@ -45,6 +52,9 @@ pub struct Args {
 pub enum Stage {
     /// Mesh -> labels.
     Voxelize,
+    /// Labels -> phi, multigrid, on the standard problem (ball of radius 0.45 N, sink of
+    /// radius 2).
+    Solve,
 }
 
 /// Peak resident set of this process so far, bytes (Linux; 0 elsewhere).
@@ -61,7 +71,9 @@ pub fn peak_rss() -> u64 {
 
 /// Run `harmap bench`.
 pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
-    let Stage::Voxelize = a.stage;
+    if let Stage::Solve = a.stage {
+        return bench_solve(a, g);
+    }
     let input = a.input.clone().or_else(|| {
         [
             "../shared/data/meshes/armadillo.obj.gz",
@@ -120,6 +132,58 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     })();
     if a.dir.is_none() {
         // The directory was made for this benchmark; a given one is the user's.
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+    measured
+}
+
+/// `harmap bench solve`: the standard problem at each --n, from labels to a stored phi.
+fn bench_solve(a: &Args, g: &Global) -> anyhow::Result<()> {
+    use harmap::solve::{solve, SolveOptions};
+    use harmap::voxelize::StandardBall;
+    let dir = tempfile_dir(a.dir.as_ref())?;
+    println!(
+        "harmap bench solve: standard ball (radius 0.45 N, sink radius 2), multigrid, rtol 1e-6, --mem {}, {} threads",
+        a.mem,
+        rayon::current_num_threads()
+    );
+    println!(
+        "{:>6} {:>9} {:>7} {:>8} {:>14} {:>10} {:>12}",
+        "N", "seconds", "cycles", "sweeps", "updates/s", "residual", "peak RSS"
+    );
+    let bars = Bars::new(g);
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    let measured = (|| -> anyhow::Result<()> {
+        for &n in &a.n {
+            let out = dir.join(format!("bench-solve-{n}.harmap"));
+            let p = StandardBall {
+                n,
+                sink_radius: 2.0,
+                chunk: 64,
+                mem: a.mem,
+            };
+            let (run, _) = harmap::pipeline::standard_ball_run(&p, &out, true, &bars)?;
+            let opts = SolveOptions {
+                mem: a.mem,
+                checkpoint_every: 0.0,
+                ..SolveOptions::default()
+            };
+            let t = Instant::now();
+            let r = solve(&run, &opts, &stop, &bars)?;
+            let secs = t.elapsed().as_secs_f64();
+            println!(
+                "{n:>6} {secs:>9.3} {:>7} {:>8.1} {:>14.3e} {:>10.2e} {:>12}",
+                r.iterations,
+                r.sweep_equivalents,
+                r.unknowns as f64 * r.sweep_equivalents / secs,
+                r.relative_residual,
+                harmap::grid::human(peak_rss())
+            );
+            std::fs::remove_dir_all(&out)?;
+        }
+        Ok(())
+    })();
+    if a.dir.is_none() {
         let _ = std::fs::remove_dir_all(&dir);
     }
     measured

@@ -46,6 +46,20 @@ fn summary(attrs: &Value) -> Value {
             "inside_rule": v["inside_rule"],
         });
     }
+    if let Some(v) = attrs.pointer("/stages/solve/result") {
+        s["solve"] = json!({
+            "status": attrs.pointer("/stages/solve/status"),
+            "seconds": attrs.pointer("/stages/solve/seconds"),
+            "method": v["method"],
+            "iterations": v["iterations"],
+            "stopped_by": v["stopped_by"],
+            "relative_residual": v["relative_residual"],
+            "max_change": v["max_change"],
+            "unknowns": v["unknowns"],
+            "residual_history": v["residual_history"],
+            "resumed_at": v["resumed_at"],
+        });
+    }
     s
 }
 
@@ -134,6 +148,28 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
                 timings.map(|t| format!(" ({t})")).unwrap_or_default()
             )?;
         }
+    }
+    if let Some(v) = attrs.pointer("/stages/solve/result") {
+        let hist: Vec<String> = v["residual_history"]
+            .as_array()
+            .map(|a| {
+                a.iter()
+                    .filter_map(Value::as_f64)
+                    .map(|r| format!("{r:.1e}"))
+                    .collect()
+            })
+            .unwrap_or_default();
+        writeln!(
+            out,
+            "solve:    {} {} iterations, stopped by {}: relative residual {:.2e}, largest change {:.2e}, {} unknowns",
+            v["method"].as_str().unwrap_or("?"),
+            v["iterations"],
+            v["stopped_by"].as_str().unwrap_or("?"),
+            v["relative_residual"].as_f64().unwrap_or(f64::NAN),
+            v["max_change"].as_f64().unwrap_or(f64::NAN),
+            v["unknowns"]
+        )?;
+        writeln!(out, "residual: {}", hist.join(" "))?;
     }
     Ok(())
 }

@@ -1,12 +1,14 @@
 //! The command line: the only place that knows clap and indicatif.
 //!
-//! Exit codes: 0 success, 1 the run failed, 2 bad usage or bad input. A closed pipe on
+//! Exit codes: 0 success, 1 the run failed, 2 bad usage or bad input, 130 interrupted
+//! (SIGINT/SIGTERM) with the solve checkpointed. A closed pipe on
 //! stdout (`harmap info RUN | head`) counts as success.
 
 mod bench;
 mod info;
 mod progress;
 mod run;
+mod solve;
 mod voxelize;
 
 use std::fmt::Write as _;
@@ -66,6 +68,7 @@ pub enum ProgressMode {
 enum Command {
     Run(run::Args),
     Voxelize(voxelize::Args),
+    Solve(solve::Args),
     Info(info::Args),
     Bench(bench::Args),
 }
@@ -134,6 +137,9 @@ fn exit_code(e: &anyhow::Error) -> u8 {
             return 2;
         }
         if let Some(h) = c.downcast_ref::<harmap::Error>() {
+            if let harmap::Error::Solve(harmap::solve::SolveError::Interrupted { .. }) = h {
+                return 130;
+            }
             return if h.is_bad_input() { 2 } else { 1 };
         }
     }
@@ -162,6 +168,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Run(a) => run::run(&a, &global),
         Command::Voxelize(a) => voxelize::run(&a, &global),
+        Command::Solve(a) => solve::run(&a, &global),
         Command::Info(a) => info::run(&a, &global),
         Command::Bench(a) => bench::run(&a, &global),
     }

@@ -43,7 +43,7 @@ impl harmap::progress::Progress for Bars {
         let bar = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr());
         bar.set_style(
             ProgressStyle::with_template(
-                "{msg:40} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta}",
+                "{msg:50} [{bar:25}] {pos}/{len} {elapsed_precise} eta {eta}",
             )
             .expect("template")
             .progress_chars("=> "),
@@ -56,6 +56,24 @@ impl harmap::progress::Progress for Bars {
     fn advance(&self, n: u64) {
         if let Some(b) = &*self.bar.lock().expect("lock") {
             b.inc(n);
+        }
+    }
+
+    fn set_total(&self, total: u64) {
+        if let Some(b) = &*self.bar.lock().expect("lock") {
+            b.set_length(total);
+        }
+    }
+
+    fn set_position(&self, pos: u64) {
+        if let Some(b) = &*self.bar.lock().expect("lock") {
+            b.set_position(pos);
+        }
+    }
+
+    fn message(&self, message: &str) {
+        if let Some(b) = &*self.bar.lock().expect("lock") {
+            b.set_message(message.to_owned());
         }
     }
 

@@ -44,9 +44,14 @@ impl<T: Scalar> BlockStore<T> for MemStore<T> {
 
     fn write_block(&self, b: Idx3, data: &[T]) -> Result<(), GridError> {
         check_block(&self.spec, b, Some(data))?;
-        *self.blocks[self.spec.block_linear(b) as usize]
+        let mut slot = self.blocks[self.spec.block_linear(b) as usize]
             .write()
-            .expect("lock") = Some(data.to_vec());
+            .expect("lock");
+        // Overwrite in place: no allocation churn for stores rewritten every pass.
+        match &mut *slot {
+            Some(v) => v.copy_from_slice(data),
+            None => *slot = Some(data.to_vec()),
+        }
         Ok(())
     }
 

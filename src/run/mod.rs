@@ -114,6 +114,20 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RunError> {
     Ok(())
 }
 
+/// The lock a stage holds on a run (see [`RunDir::lock`]).
+#[derive(Debug)]
+pub struct RunLock {
+    file: fs::File,
+    path: PathBuf,
+}
+
+impl Drop for RunLock {
+    fn drop(&mut self) {
+        let _ = fs::remove_file(&self.path);
+        let _ = self.file.unlock();
+    }
+}
+
 /// An open run directory.
 #[derive(Clone, Debug)]
 pub struct RunDir {
@@ -362,6 +376,74 @@ impl RunDir {
             compression,
             Map::new(),
         )?)
+    }
+
+    /// Hold the run's lock file (`RUN.lock`) while a stage changes the run, so two
+    /// harmap processes never write the same run. Released when the guard drops.
+    pub fn lock(&self) -> Result<RunLock, RunError> {
+        let path = sibling(&self.root, "lock");
+        let file = fs::File::create(&path).map_err(io(&path))?;
+        if file.try_lock().is_err() {
+            return Err(RunError::Busy {
+                path: self.root.clone(),
+            });
+        }
+        Ok(RunLock { file, path })
+    }
+
+    /// Create the image `name` under a temporary directory name; [`RunDir::commit_image`]
+    /// moves it into place once whole, so a killed stage never leaves a partial image
+    /// under the real name.
+    pub fn create_image_staged<T: Scalar>(
+        &self,
+        name: &str,
+        spec: &GridSpec,
+        fill: T,
+        compression: Compression,
+    ) -> Result<ZarrStore<T>, crate::Error> {
+        let tmp = format!("{name}.partial");
+        let dir = self.root.join(&tmp);
+        if dir.exists() {
+            fs::remove_dir_all(&dir).map_err(io(&dir))?;
+        }
+        fs::create_dir_all(&dir).map_err(io(&dir))?;
+        let doc = json!({
+            "zarr_format": 3,
+            "node_type": "group",
+            "attributes": { "ome": ome_multiscales(name, spec) }
+        });
+        write_atomic(
+            &dir.join("zarr.json"),
+            serde_json::to_string_pretty(&doc).expect("json").as_bytes(),
+        )?;
+        Ok(ZarrStore::create(
+            &self.root,
+            &format!("/{tmp}/0"),
+            spec.clone(),
+            fill,
+            compression,
+            Map::new(),
+        )?)
+    }
+
+    /// Move the image staged by [`RunDir::create_image_staged`] into place, replacing an
+    /// older one.
+    pub fn commit_image(&self, name: &str) -> Result<(), RunError> {
+        let tmp = self.root.join(format!("{name}.partial"));
+        let dest = self.root.join(name);
+        let old = self.root.join(format!("{name}.old-{}", std::process::id()));
+        let replacing = dest.exists();
+        if replacing {
+            fs::rename(&dest, &old).map_err(io(&dest))?;
+        }
+        fs::rename(&tmp, &dest).map_err(io(&dest))?;
+        if let Ok(d) = fs::File::open(&self.root) {
+            let _ = d.sync_all();
+        }
+        if replacing {
+            fs::remove_dir_all(&old).map_err(io(&old))?;
+        }
+        Ok(())
     }
 
     /// Open the array of image `name`.

@@ -1,0 +1,528 @@
+#!/usr/bin/env python3
+"""harmap's Laplace solve vs two peers on the same discrete system: pyamg and a C SOR.
+
+    python3 -m venv /tmp/cmpvenv
+    /tmp/cmpvenv/bin/pip install numpy scipy pyamg 'zarr>=3'      # a C compiler: cc
+    /tmp/cmpvenv/bin/python benches/compare_solve.py RUN [--rtol 1e-6] [--eps 1e-4] [--json out.json]
+
+RUN is a harmap run directory (Zarr v3 group) with RUN/labels/0, e.g. from
+`harmap voxelize ... -o RUN`. If RUN/phi/0 exists (harmap's solve), it is compared too.
+
+The discrete system (harmap's, src/solve):
+  * labels: 0 exterior (not part of the problem), 1 boundary (phi = 1), 2 interior
+    (unknown), 3 center (phi = 0), 4..7 exterior layer k = 1..4 (phi = 1 + k eps);
+  * at each unknown i: 6 phi_i - (sum of its 6 face neighbours) = 0, fixed neighbours
+    moved to the right-hand side. So A is the 7-point Laplacian restricted to the
+    unknowns (symmetric positive definite) and b_i is the sum of i's fixed neighbours.
+    By construction an unknown's neighbours are on the grid and never label 0 (checked);
+  * start x0 = 1 at every unknown (harmap's), and the stopping rule is the relative
+    residual ||b - A x||_2 / ||b - A x0||_2 < rtol. harmap's residual, per unknown, is
+    (mean of neighbours - phi) = (b - A x)_i / 6: the same ratio.
+
+The peers, each in its own process so that its peak RSS (from wait4) is its own:
+  * pyamg: `smoothed_aggregation_solver(A)` with its defaults, then `solve(b, x0=x0)`
+    twice from the same hierarchy: plain V-cycles (accel=None, the main line) and
+    V-cycle-preconditioned CG (accel='cg'). Setup = assembling A and b from the labels
+    (vectorized numpy, CSR with int32 indices) + building the hierarchy. pyamg stops on
+    ||b - A x|| < tol ||b|| (relative to b, not to the start), and here ||b - A x0|| is far
+    smaller than ||b|| (only the unknowns next to the center start off balance), so tol
+    is set to rtol ||b - A x0|| / ||b||. pyamg runs on one core (its C++ kernels and
+    scipy's sparse products are serial).
+  * SOR: benches/sor.c, compiled here with `cc -O3 -march=native -ffp-contract=off
+    -fopenmp` (without -fopenmp if that fails): red-black SOR with omega =
+    2 / (1 + sin(pi / n)), n the grid's longest side, on --threads OpenMP threads, the
+    residual checked every --check-every iterations (1, as harmap does). Its iterates
+    are harmap's red-black SOR's bit for bit (same colors, update formula, order of sums).
+
+Reported per peer: setup, solve and total seconds (timed inside the process; the
+process's wall time, with reading the labels and writing phi, is shown too), iterations,
+peak RSS, the relative residual the peer reports and the one this script recomputes from
+its phi with an independent matrix-free stencil, max |phi - phi_ref| with phi_ref a far
+tighter solve (pyamg CG to --ref-rtol, untimed), and max |phi_a - phi_b| over the
+unknowns for every pair (harmap's RUN/phi/0 included when it exists). pyamg's random
+start vectors are seeded, so every run gives the same phi. On a shared machine use
+--repeat 3: each line then shows the run of median total time, all totals listed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+INTERIOR = 2
+EPS_DEFAULT = 1e-4
+
+
+# ---------------------------------------------------------------------------------------
+# The discrete system
+# ---------------------------------------------------------------------------------------
+
+
+def fixed_values(eps: float):
+    """phi at each label, indexed by label: NaN where it is not a fixed value (0, 2)."""
+    import numpy as np
+
+    lut = np.full(256, np.nan)
+    lut[1] = 1.0
+    lut[3] = 0.0
+    lut[4:8] = 1.0 + eps * np.arange(1, 5)
+    return lut
+
+
+def neighbour_offsets(shape):
+    """Flat offsets of the 6 face neighbours in harmap's order (-x, +x, -y, +y, -z, +z)."""
+    _, ny, nx = shape
+    return (-1, 1, -nx, nx, -nx * ny, nx * ny)
+
+
+def check_labels(labels) -> str | None:
+    """Why `labels` is not a system this script (and harmap) can solve, or None."""
+    import numpy as np
+
+    if labels.ndim != 3 or labels.dtype != np.uint8:
+        return f"labels must be a 3-d uint8 array, got {labels.dtype} {labels.shape}"
+    if int(labels.max(initial=0)) > 7:
+        return f"unknown label {int(labels.max())} (expected 0..7)"
+    unk = labels == INTERIOR
+    if not unk.any():
+        return "no interior (label 2) voxels: nothing to solve"
+    if any(unk[s].any() for s in (np.s_[[0, -1], :, :], np.s_[:, [0, -1], :], np.s_[:, :, [0, -1]])):
+        return "an interior voxel lies on the grid's edge"
+    flat = labels.ravel()
+    p = np.flatnonzero(flat == INTERIOR)
+    for off in neighbour_offsets(labels.shape):
+        if (flat[p + off] == 0).any():
+            return "an interior voxel has an exterior (label 0) neighbour"
+    return None
+
+
+def assemble(labels, eps: float):
+    """A (CSR, int32 indices), b and the flat grid index of each unknown, in C order."""
+    import numpy as np
+    import scipy.sparse as sp
+
+    flat = labels.ravel()
+    p = np.flatnonzero(flat == INTERIOR)
+    n = p.size
+    index = np.full(flat.size, -1, dtype=np.int32)
+    index[p] = np.arange(n, dtype=np.int32)
+    lut = fixed_values(eps)
+    # Columns of each row in increasing order: -z, -y, -x, diagonal, +x, +y, +z (the
+    # unknowns are numbered in C order, so the column order is the offset order).
+    nx, ny = labels.shape[2], labels.shape[1]
+    offsets = (-nx * ny, -nx, -1, 0, 1, nx, nx * ny)
+    cols = np.empty((n, 7), dtype=np.int32)
+    b = np.zeros(n)
+    for j, off in enumerate(offsets):
+        if off == 0:
+            cols[:, j] = np.arange(n, dtype=np.int32)
+            continue
+        q = p + off
+        c = index[q]
+        cols[:, j] = c
+        fixed = c < 0
+        b[fixed] += lut[flat[q[fixed]]]
+    del index
+    keep = cols >= 0
+    counts = keep.sum(axis=1, dtype=np.int32)
+    indptr = np.zeros(n + 1, dtype=np.int32)
+    np.cumsum(counts, out=indptr[1:])
+    indices = cols[keep]
+    del cols
+    data = np.full(indices.size, -1.0)
+    data[indptr[:-1] + keep[:, :3].sum(axis=1, dtype=np.int32)] = 6.0  # the diagonal
+    A = sp.csr_matrix((data, indices, indptr), shape=(n, n))
+    if not np.isfinite(b).all():
+        raise ValueError("an interior voxel has an exterior neighbour")
+    return A, b, p
+
+
+def residual_norm(labels_flat, p, offsets, lut, x) -> float:
+    """||b - A x||_2 for unknown values x, matrix-free (independent of `assemble`)."""
+    import numpy as np
+
+    phi = lut[labels_flat]
+    phi[p] = x
+    r = -6.0 * phi[p]
+    for off in offsets:
+        r += phi[p + off]
+    return float(np.linalg.norm(r))
+
+
+# ---------------------------------------------------------------------------------------
+# The pyamg peer (run in a child process: `--worker-pyamg`)
+# ---------------------------------------------------------------------------------------
+
+
+def peak_rss_self() -> int:
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return r if sys.platform == "darwin" else r * 1024
+
+
+def pyamg_worker(a) -> int:
+    import numpy as np
+    import pyamg
+    import scipy
+
+    shape = tuple(a.shape)
+    labels = np.fromfile(a.labels, dtype=np.uint8).reshape(shape)
+    lut = fixed_values(a.eps)
+
+    # pyamg estimates spectral radii from random vectors: seeded, runs repeat exactly.
+    np.random.seed(0)
+    t0 = time.perf_counter()
+    A, b, p = assemble(labels, a.eps)
+    t_assemble = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    ml = pyamg.smoothed_aggregation_solver(A)
+    t_hierarchy = time.perf_counter() - t0
+    out = {
+        "versions": {"pyamg": pyamg.__version__, "numpy": np.__version__, "scipy": scipy.__version__},
+        "unknowns": int(p.size),
+        "nnz": int(A.nnz),
+        "levels": [int(lv.A.shape[0]) for lv in ml.levels],
+        "operator_complexity": float(ml.operator_complexity()),
+        "grid_complexity": float(ml.grid_complexity()),
+        "assemble_s": t_assemble,
+        "hierarchy_s": t_hierarchy,
+        "setup_s": t_assemble + t_hierarchy,
+        "peak_rss_setup": peak_rss_self(),
+        "solves": {},
+    }
+    x0 = np.ones(p.size)
+    r0 = float(np.linalg.norm(b - A @ x0))
+    normb = float(np.linalg.norm(b))
+    # pyamg stops on ||b - A x|| < tol ||b||; we want ||b - A x|| < rtol ||b - A x0||.
+    tol = a.rtol * r0 / normb
+    out.update(residual0=r0, norm_b=normb, pyamg_tol=tol)
+    for name, accel in (("vcycle", None), ("cg", "cg")):
+        if accel and a.no_cg:
+            continue
+        residuals: list[float] = []
+        t0 = time.perf_counter()
+        x = ml.solve(b, x0=x0.copy(), tol=tol, maxiter=a.maxiter, accel=accel, residuals=residuals)
+        t_solve = time.perf_counter() - t0
+        rel = float(np.linalg.norm(b - A @ x)) / r0
+        phi = lut[labels.ravel()]
+        phi[p] = x
+        phi.tofile(Path(a.out) / f"phi_pyamg_{name}.f64")
+        del phi
+        out["solves"][name] = {
+            "accel": accel,
+            "iterations": len(residuals) - 1,
+            "solve_s": t_solve,
+            "rel_residual": rel,
+            "rel_residual_pyamg": residuals[-1] / r0,
+            "converged": rel < a.rtol,
+            "peak_rss": peak_rss_self(),
+        }
+    if a.ref_rtol > 0:
+        # A far tighter solve: the yardstick for every peer's error in phi.
+        residuals = []
+        x = ml.solve(b, x0=x0.copy(), tol=a.ref_rtol * r0 / normb, maxiter=10 * a.maxiter, accel="cg",
+                     residuals=residuals)
+        phi = lut[labels.ravel()]
+        phi[p] = x
+        phi.tofile(Path(a.out) / "phi_reference.f64")
+        out["reference"] = {"rtol": a.ref_rtol, "iterations": len(residuals) - 1,
+                            "rel_residual": float(np.linalg.norm(b - A @ x)) / r0}
+    (Path(a.out) / "pyamg.json").write_text(json.dumps(out, indent=1))
+    return 0
+
+
+# ---------------------------------------------------------------------------------------
+# Running the peers
+# ---------------------------------------------------------------------------------------
+
+
+def run_measured(cmd, env, log: Path):
+    """Run `cmd`; its stdout, wall seconds and own peak RSS in bytes (wait4)."""
+    t0 = time.perf_counter()
+    with open(log, "w") as out, open(log.with_suffix(".err"), "w") as err:
+        proc = subprocess.Popen(cmd, stdout=out, stderr=err, env=env)
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+    wall = time.perf_counter() - t0
+    rss = usage.ru_maxrss if sys.platform == "darwin" else usage.ru_maxrss * 1024
+    if proc.returncode != 0:
+        sys.exit(f"error: {' '.join(map(str, cmd))} failed ({proc.returncode}):\n"
+                 f"{log.with_suffix('.err').read_text()}")
+    return log.read_text(), wall, rss
+
+
+def compile_sor(cc: str, tmp: Path) -> tuple[Path, list[str]]:
+    src = Path(__file__).resolve().parent / "sor.c"
+    exe = tmp / "sor"
+    errors = []
+    # -ffp-contract=off: no fused multiply-adds, as Rust, so the iterates are harmap's.
+    base = ["-O3", "-march=native", "-ffp-contract=off"]
+    for flags in ([*base, "-fopenmp"], base, ["-O3", "-ffp-contract=off"]):
+        cmd = [cc, *flags, str(src), "-o", str(exe), "-lm"]
+        p = subprocess.run(cmd, capture_output=True, text=True)
+        if p.returncode == 0:
+            return exe, flags
+        errors.append(f"$ {' '.join(cmd)}\n{p.stderr}")
+    sys.exit("error: cannot compile benches/sor.c:\n" + "\n".join(errors))
+
+
+def thread_env(threads: int) -> dict:
+    env = dict(os.environ)
+    for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        env[k] = str(threads)
+    return env
+
+
+# ---------------------------------------------------------------------------------------
+# Main
+# ---------------------------------------------------------------------------------------
+
+
+def fail(msg: str) -> None:
+    """Bad input: a message and exit code 2 (harmap's convention)."""
+    print(f"error: {msg}", file=sys.stderr)
+    sys.exit(2)
+
+
+def mib(b) -> str:
+    return f"{b / 2**20:.0f}"
+
+
+def fmt_s(x) -> str:
+    return "-" if x is None else f"{x:.2f}"
+
+
+def run_peers(a, labels_path: Path, shape, tmp: Path, report: dict) -> dict[str, list[dict]]:
+    """Run the peers --repeat times, interleaved; every run of every line of the table.
+    Their phi are left in `tmp` (the runs are deterministic: the same every time)."""
+    env = thread_env(a.threads)
+    runs: dict[str, list[dict]] = {}
+    if "sor" not in a.skip:
+        exe, flags = compile_sor(a.cc, tmp)
+    for rep in range(a.repeat):
+        tag = f" (run {rep + 1} of {a.repeat})" if a.repeat > 1 else ""
+        if "pyamg" not in a.skip:
+            print(f"pyamg: assembling, building the hierarchy, solving{tag} ...", flush=True)
+            ref = a.ref_rtol if rep == 0 else 0.0  # the reference is the same every time
+            cmd = [sys.executable, str(Path(__file__).resolve()), "--worker-pyamg", "--labels", str(labels_path),
+                   "--shape", *map(str, shape), "--eps", repr(a.eps), "--rtol", repr(a.rtol), "--out", str(tmp),
+                   "--maxiter", str(a.maxiter), "--ref-rtol", repr(ref)] + (["--no-cg"] if a.no_cg else [])
+            _, wall, rss = run_measured(cmd, env, tmp / "pyamg.log")
+            w = json.loads((tmp / "pyamg.json").read_text())
+            if rep == 0:
+                report["pyamg"] = {k: v for k, v in w.items() if k != "solves"} | {"process_peak_rss": rss}
+            for name, r in w["solves"].items():
+                key = "pyamg SA" + (" + CG" if r["accel"] else " V-cycle")
+                runs.setdefault(key, []).append({
+                    "setup_s": w["setup_s"], "solve_s": r["solve_s"], "total_s": w["setup_s"] + r["solve_s"],
+                    "assemble_s": w["assemble_s"], "hierarchy_s": w["hierarchy_s"],
+                    "iterations": r["iterations"], "peak_rss": r["peak_rss"], "rel_residual": r["rel_residual"],
+                    "converged": r["converged"], "process_wall_s": wall, "file": f"phi_pyamg_{name}.f64"})
+        if "sor" not in a.skip:
+            print(f"SOR: {a.cc} {' '.join(flags)}; solving{tag} ...", flush=True)
+            cmd = [str(exe), str(labels_path), *map(str, shape), repr(a.eps), repr(a.rtol),
+                   str(tmp / "phi_sor.f64"), str(a.check_every), str(a.sor_max_iter)]
+            out, wall, rss = run_measured(cmd, env, tmp / "sor.log")
+            r = json.loads(out)
+            report["sor"] = r | {"flags": flags}
+            runs.setdefault("SOR red-black (C)", []).append({
+                "setup_s": r["setup_s"], "solve_s": r["solve_s"], "total_s": r["setup_s"] + r["solve_s"],
+                "iterations": r["iterations"], "peak_rss": rss, "rel_residual": r["rel_residual"],
+                "converged": r["converged"], "residual_check_s": r["residual_check_s"],
+                "process_wall_s": wall, "file": "phi_sor.f64"})
+    return runs
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("run", nargs="?", help="harmap run directory (with labels/0)")
+    ap.add_argument("--rtol", type=float, default=1e-6, help="stop at ||b-Ax|| / ||b-Ax0|| < RTOL (default 1e-6)")
+    ap.add_argument("--eps", type=float, default=EPS_DEFAULT, help="exterior layer spacing (default 1e-4)")
+    ap.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
+    ap.add_argument("--threads", type=int, default=2,
+                    help="OpenMP threads of the SOR, BLAS threads of pyamg's process (default 2)")
+    ap.add_argument("--check-every", type=int, default=1,
+                    help="SOR: residual check interval in iterations (default 1)")
+    ap.add_argument("--maxiter", type=int, default=500, help="pyamg: cycle / CG iteration limit (default 500)")
+    ap.add_argument("--sor-max-iter", type=int, default=100000, help="SOR iteration limit (default 100000)")
+    ap.add_argument("--no-cg", action="store_true", help="skip pyamg's CG-accelerated solve")
+    ap.add_argument("--ref-rtol", type=float, default=1e-11,
+                    help="pyamg also solves to this relative residual (CG, untimed) as the reference each peer's "
+                         "phi is compared to (0: no reference; default 1e-11)")
+    ap.add_argument("--skip", choices=["pyamg", "sor"], action="append", default=[], help="skip a peer")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="run every peer this many times, interleaved, and report the run of median total time "
+                         "(default 1)")
+    ap.add_argument("--cc", default=os.environ.get("CC", "cc"), help="C compiler (default $CC or cc)")
+    ap.add_argument("--keep", metavar="DIR", help="keep the scratch files (labels, phi of each peer) in DIR")
+    # The pyamg child process.
+    ap.add_argument("--worker-pyamg", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--labels", help=argparse.SUPPRESS)
+    ap.add_argument("--shape", type=int, nargs=3, help=argparse.SUPPRESS)
+    ap.add_argument("--out", help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.worker_pyamg:
+        return pyamg_worker(a)
+    if a.run is None:
+        ap.error("the run directory is required")
+
+    import numpy as np
+    import zarr
+
+    run = Path(a.run)
+    if not (run / "zarr.json").is_file():
+        fail(f"{run} is not a harmap run directory (no zarr.json)")
+    if not (run / "labels" / "0" / "zarr.json").is_file():
+        fail(f"{run} has no labels array labels/0 (run `harmap voxelize` first)")
+    labels = np.ascontiguousarray(zarr.open_array(str(run / "labels" / "0"), mode="r")[...])
+    why = check_labels(labels)
+    if why:
+        fail(f"{run}/labels/0: {why}")
+    shape = labels.shape
+    flat = labels.ravel()
+    p = np.flatnonzero(flat == INTERIOR)
+    n = int(p.size)
+    offsets = neighbour_offsets(shape)
+    lut = fixed_values(a.eps)
+    r0 = residual_norm(flat, p, offsets, lut, np.ones(n))
+    print(f"{run}: grid {shape[0]}x{shape[1]}x{shape[2]}, {n} unknowns, ||b - A x0|| = {r0:.6g}, "
+          f"rtol {a.rtol:g}, eps {a.eps:g}, {a.threads} threads", flush=True)
+
+    tmp = Path(a.keep) if a.keep else Path(tempfile.mkdtemp(prefix="harmap-cmp-"))
+    tmp.mkdir(parents=True, exist_ok=True)
+    peers: dict[str, dict] = {}
+    phis: dict[str, np.ndarray] = {}
+    phis_ref = None
+    report = {"run": str(run), "shape": list(shape), "unknowns": n, "rtol": a.rtol, "eps": a.eps,
+              "threads": a.threads, "repeat": a.repeat, "residual0": r0,
+              "machine": {"cpu": cpu_name(), "cores": os.cpu_count(), "python": platform.python_version()},
+              "peers": peers}
+    try:
+        labels_path = tmp / "labels.u8"
+        labels.tofile(labels_path)
+        runs = run_peers(a, labels_path, shape, tmp, report)
+        # Each line: the repeat with the median total time (the machine may be shared);
+        # every total is kept in the JSON. The peers are deterministic: phi is the same.
+        for key, rs in runs.items():
+            med = sorted(rs, key=lambda r: r["total_s"])[(len(rs) - 1) // 2]
+            peers[key] = med | {"total_s_runs": [r["total_s"] for r in rs]}
+        for key, peer in peers.items():
+            phis[key] = np.fromfile(tmp / peer.pop("file"), dtype=np.float64)[p]
+        if report.get("pyamg", {}).get("reference"):
+            phis_ref = np.fromfile(tmp / "phi_reference.f64", dtype=np.float64)[p]
+    finally:
+        if not a.keep:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+    # harmap's own phi, when its solve stage has run.
+    harmap_phi = run / "phi" / "0"
+    if (harmap_phi / "zarr.json").is_file():
+        h = zarr.open_array(str(harmap_phi), mode="r")
+        if tuple(h.shape) != shape:
+            fail(f"{harmap_phi} has shape {h.shape}, labels {shape}")
+        phis["harmap"] = np.asarray(h[...], dtype=np.float64).ravel()[p]
+        stage = json.loads((run / "zarr.json").read_text()).get("attributes", {}).get("harmap", {}) \
+            .get("stages", {}).get("solve", {})
+        result = stage.get("result") or {}
+        rel = result.get("relative_residual", (result.get("residual_history") or [None])[-1])
+        peers["harmap"] = {"setup_s": None, "solve_s": stage.get("seconds"), "total_s": stage.get("seconds"),
+                           "iterations": result.get("iterations"), "peak_rss": None, "rel_residual": rel,
+                           "method": result.get("method")}
+        report["harmap_solve_stage"] = stage
+    else:
+        print(f"harmap: no {harmap_phi} (harmap's solve has not run on this run directory)")
+
+    # The same residual, recomputed from every phi by one matrix-free stencil.
+    for key, x in phis.items():
+        peers[key]["rel_residual_check"] = residual_norm(flat, p, offsets, lut, x) / r0
+        peers[key]["phi_range"] = [float(np.nanmin(x)), float(np.nanmax(x))]
+        if phis_ref is not None:
+            peers[key]["max_abs_diff_reference"] = float(np.max(np.abs(x - phis_ref)))
+    keys = list(phis)
+    diffs = {}
+    for i, ka in enumerate(keys):
+        for kb in keys[i + 1:]:
+            diffs[f"{ka} | {kb}"] = float(np.max(np.abs(phis[ka] - phis[kb])))
+    report["max_abs_diff"] = diffs
+
+    print_table(peers, report)
+    if a.json:
+        Path(a.json).write_text(json.dumps(report, indent=1) + "\n")
+        print(f"wrote {a.json}")
+    return 0
+
+
+def print_table(peers: dict, report: dict) -> None:
+    print()
+    head = f"{'peer':<20} {'setup s':>8} {'solve s':>8} {'total s':>8} {'iters':>6} {'peak MiB':>9} " \
+           f"{'rel.res':>9} {'(check)':>9} {'|d ref|':>9}"
+    print(head)
+    print("-" * len(head))
+    for key, r in peers.items():
+        rr = "-" if r.get("rel_residual") is None else f"{r['rel_residual']:.2e}"
+        if r.get("converged") is False:
+            rr += "!"
+        rc = "-" if r.get("rel_residual_check") is None else f"{r['rel_residual_check']:.2e}"
+        it = "-" if r.get("iterations") is None else str(r["iterations"])
+        rss = "-" if r.get("peak_rss") is None else mib(r["peak_rss"])
+        dr = "-" if r.get("max_abs_diff_reference") is None else f"{r['max_abs_diff_reference']:.2e}"
+        print(f"{key:<20} {fmt_s(r['setup_s']):>8} {fmt_s(r['solve_s']):>8} {fmt_s(r['total_s']):>8} {it:>6} "
+              f"{rss:>9} {rr:>9} {rc:>9} {dr:>9}")
+    print()
+    for key, r in peers.items():
+        if key.startswith("pyamg"):
+            w = report["pyamg"]
+            print(f"{key}: setup = assemble {r['assemble_s']:.2f} s + hierarchy {r['hierarchy_s']:.2f} s; "
+                  f"process wall {r['process_wall_s']:.2f} s.")
+    if "pyamg" in report:
+        print(f"pyamg {w['versions']['pyamg']}: {len(w['levels'])} levels {w['levels']}, operator complexity "
+              f"{w['operator_complexity']:.2f}; the two solves share one setup in one process, peak RSS is "
+              f"the process's up to the end of that solve; tol = {w['pyamg_tol']:.3g} "
+              f"(= rtol ||b-Ax0|| / ||b||, ||b|| = {w['norm_b']:.4g}).")
+    if "sor" in report:
+        s, r = report["sor"], peers["SOR red-black (C)"]
+        print(f"SOR: omega {s['omega']:.6f}, {s['threads']} threads ({' '.join(s['flags'])}), residual checked "
+              f"every {s['check_every']} iteration(s), {r['residual_check_s']:.2f} s of the solve in checks; "
+              f"process wall {r['process_wall_s']:.2f} s.")
+    if "harmap" in peers:
+        h = peers["harmap"]
+        print(f"harmap: RUN/phi/0; time, iterations and rel.res from RUN/zarr.json (stages.solve, method "
+              f"{h.get('method')}), as that run recorded them on whatever machine and load it had.")
+    if report.get("repeat", 1) > 1:
+        print(f"Times: the run of median total of {report['repeat']}, interleaved; all totals (s):")
+        for key, r in peers.items():
+            if r.get("total_s_runs"):
+                print(f"  {key:<20} " + " ".join(f"{t:.2f}" for t in r["total_s_runs"]))
+    print("rel.res: ||b - A x|| / ||b - A x0|| as the peer computed it (!: not below rtol, the iteration limit "
+          "stopped it); (check): recomputed here, matrix-free.")
+    if report.get("pyamg", {}).get("reference"):
+        ref = report["pyamg"]["reference"]
+        print(f"|d ref|: max |phi - phi_ref| over the unknowns, phi_ref from pyamg SA + CG to rel.res "
+              f"{ref['rel_residual']:.1e} ({ref['iterations']} iterations, untimed).")
+    if report["max_abs_diff"]:
+        print("\nmax |phi_a - phi_b| over the unknowns:")
+        for k, v in report["max_abs_diff"].items():
+            print(f"  {k:<45} {v:.3e}")
+
+
+def cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

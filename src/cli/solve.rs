@@ -1,0 +1,165 @@
+//! `harmap solve`.
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+use harmap::grid::MemBudget;
+use harmap::run::RunDir;
+use harmap::solve::driver::Method;
+use harmap::solve::{solve, SolveOptions, SolveReport};
+
+use super::progress::Bars;
+use super::Global;
+
+/// Solve Laplace's equation for phi on a voxelized run (the paper's steps 4-5).
+///
+/// phi = 1 on the boundary, 0 in the center ball and 1 + k*eps on the four exterior
+/// layers; interior voxels are the unknowns of the 7-point finite-difference system.
+/// The result goes to RUN/phi/0 (f64, NaN outside the problem); the stop criterion, the
+/// iterations and the residual history go to the run's attributes (`harmap info RUN`).
+///
+/// Stopping: --rtol stops when the residual ||r||_2 has fallen by that factor from the
+/// start; --tol is the paper's criterion (largest change of phi in an iteration). The
+/// change criterion alone stops slow methods (Jacobi, SOR) far from the answer: their
+/// changes are small long before the error is (see docs/solve.md).
+///
+/// Interrupting (Ctrl-C, SIGTERM) writes a checkpoint and exits with code 130;
+/// `--resume` continues from it and gives the same bytes as an uninterrupted run.
+///
+/// Examples:
+///   harmap solve spot.harmap
+///   harmap solve big.harmap --mem 1GiB --checkpoint-every 10m
+///   harmap solve big.harmap --resume
+///   harmap solve spot.harmap --method jacobi --tol 1e-6 --max-iter 100000
+#[derive(clap::Args, Debug)]
+#[command(verbatim_doc_comment)]
+pub struct Args {
+    /// The run directory (made by `harmap voxelize`).
+    pub run: PathBuf,
+    #[command(flatten)]
+    pub opts: SolveArgs,
+    /// Continue from the last checkpoint of an interrupted solve.
+    #[arg(long)]
+    pub resume: bool,
+}
+
+/// Solve flags, shared with `harmap run`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct SolveArgs {
+    /// The iteration: multigrid (V-cycles), sor (red-black, optimal omega) or jacobi
+    /// (the paper's, slow; a reference).
+    #[arg(long, value_enum, default_value_t = MethodArg::Multigrid)]
+    pub method: MethodArg,
+    /// Stop when the relative residual ||r||_2 / ||r_0||_2 is below R (0: off).
+    #[arg(long, value_name = "R", default_value_t = 1e-6)]
+    pub rtol: f64,
+    /// The paper's zeta: stop when the largest change of an iteration is below it (0:
+    /// off).
+    #[arg(long, value_name = "ZETA", default_value_t = 0.0)]
+    pub tol: f64,
+    /// Spacing of the exterior layers' values, 1 + k*eps.
+    #[arg(long, value_name = "E", default_value_t = 1e-4)]
+    pub eps: f64,
+    /// Iteration limit (cycles for multigrid, sweeps for sor and jacobi).
+    #[arg(long, value_name = "N", default_value_t = 1000)]
+    pub max_iter: u64,
+    /// Over-relaxation factor for --method sor [default: 2/(1+sin(pi/n)), n the longest
+    /// axis].
+    #[arg(long, value_name = "W")]
+    pub omega: Option<f64>,
+    /// Time between checkpoints: 90s, 10m, 1h (0: only when interrupted).
+    #[arg(long, value_name = "DURATION", default_value = "5m", value_parser = parse_duration)]
+    pub checkpoint_every: f64,
+    /// Memory budget: peak resident memory (e.g. 256MiB, 2GiB).
+    #[arg(long, value_name = "SIZE", default_value = "1GiB")]
+    pub mem: MemBudget,
+}
+
+/// `--method` values.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum MethodArg {
+    /// Geometric multigrid V-cycles.
+    Multigrid,
+    /// Red-black successive over-relaxation.
+    Sor,
+    /// The paper's Jacobi iteration.
+    Jacobi,
+}
+
+impl SolveArgs {
+    /// The library options.
+    #[must_use]
+    pub fn options(&self, resume: bool) -> SolveOptions {
+        SolveOptions {
+            method: match self.method {
+                MethodArg::Multigrid => Method::Multigrid,
+                MethodArg::Sor => Method::Sor,
+                MethodArg::Jacobi => Method::Jacobi,
+            },
+            tol: self.tol,
+            rtol: self.rtol,
+            eps: self.eps,
+            max_iter: self.max_iter,
+            omega: self.omega,
+            mem: self.mem,
+            checkpoint_every: self.checkpoint_every,
+            resume,
+            ..SolveOptions::default()
+        }
+    }
+}
+
+/// Parse `90s`, `10m`, `1h`, or plain seconds.
+fn parse_duration(s: &str) -> Result<f64, String> {
+    let t = s.trim();
+    let (num, mult) = match t.chars().last() {
+        Some('s') => (&t[..t.len() - 1], 1.0),
+        Some('m') => (&t[..t.len() - 1], 60.0),
+        Some('h') => (&t[..t.len() - 1], 3600.0),
+        _ => (t, 1.0),
+    };
+    match num.trim().parse::<f64>() {
+        Ok(v) if v >= 0.0 && v.is_finite() => Ok(v * mult),
+        _ => Err(format!("'{s}' is not a duration like 90s, 10m or 1h")),
+    }
+}
+
+/// SIGINT and SIGTERM set the returned flag instead of killing the process; the solver
+/// polls it between iterations and checkpoints.
+pub fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
+    let flag = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(sig, Arc::clone(&flag))?;
+    }
+    Ok(flag)
+}
+
+/// One line about a finished solve.
+#[must_use]
+pub fn summary(r: &SolveReport, seconds: f64) -> String {
+    format!(
+        "{} iterations of {} in {seconds:.2} s, stopped by {} (relative residual {:.2e}, largest change {:.2e}), {} unknowns",
+        r.iterations,
+        r.method.name(),
+        r.stopped_by.name(),
+        r.relative_residual,
+        r.max_change,
+        r.unknowns
+    )
+}
+
+/// Run `harmap solve`.
+pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
+    let run = RunDir::open(&a.run).map_err(harmap::Error::from)?;
+    let stop = stop_flag()?;
+    let t = std::time::Instant::now();
+    let r = solve(&run, &a.opts.options(a.resume), &stop, &Bars::new(g))?;
+    g.say(&format!(
+        "{}: {}; phi in {}",
+        a.run.display(),
+        summary(&r, t.elapsed().as_secs_f64()),
+        run.root().join("phi").display()
+    ));
+    Ok(())
+}

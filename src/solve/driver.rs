@@ -1,0 +1,279 @@
+//! The iteration loop shared by the three methods: measure the residual of the current
+//! state, decide (stop, checkpoint, go on), finish the iteration.
+//!
+//! Every method's iteration starts with a pass that reads the state (generation `cur`)
+//! and measures its residual on the way; nothing has overwritten that state when the
+//! loop decides, so the answer, a checkpoint and an interruption all see one whole
+//! iterate. The residual history is therefore `||r(x_k)|| / ||r(x_0)||` for the iterates
+//! `x_0, x_1, ...` exactly.
+
+use serde::{Deserialize, Serialize};
+
+use super::boxops::BoxView;
+use super::multigrid::{Hierarchy, Level, PassStats};
+use super::stencil::optimal_omega;
+use crate::grid::{BlockStore, GridError};
+use crate::parallel::map_bounded;
+use crate::voxelize::labels::INTERIOR;
+
+/// The iteration.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Method {
+    /// V-cycles of geometric multigrid (the default).
+    #[default]
+    Multigrid,
+    /// Red-black successive over-relaxation with the model problem's optimal factor.
+    Sor,
+    /// The paper's iteration: every unknown becomes the mean of its neighbours.
+    Jacobi,
+}
+
+impl Method {
+    /// The name used on the command line and in the run's attributes.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Multigrid => "multigrid",
+            Method::Sor => "sor",
+            Method::Jacobi => "jacobi",
+        }
+    }
+}
+
+/// Why the iteration stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopReason {
+    /// The relative residual fell below `rtol`.
+    Residual,
+    /// The largest change of an iteration fell below `tol` (the paper's criterion).
+    MaxChange,
+    /// `max_iter` iterations ran.
+    IterationLimit,
+    /// Asked to stop (SIGINT or SIGTERM); a checkpoint holds the state.
+    Interrupted,
+}
+
+impl StopReason {
+    /// The name in the run's attributes.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            StopReason::Residual => "residual",
+            StopReason::MaxChange => "max_change",
+            StopReason::IterationLimit => "iteration_limit",
+            StopReason::Interrupted => "interrupted",
+        }
+    }
+}
+
+/// The state of an iteration that a checkpoint records and a resume restores.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct History {
+    /// Iterations completed.
+    pub iterations: u64,
+    /// `||r(x_0)||_2` (residual of the starting state), 0 before the first measure.
+    pub r0: f64,
+    /// `||r(x_k)||_2 / ||r(x_0)||_2` for `k = 0..` (as measured so far).
+    pub residual: Vec<f64>,
+    /// Largest |x_{k+1} - x_k| over the unknowns, per completed iteration.
+    pub max_change: Vec<f64>,
+    /// Which generation holds the state (0 or 1).
+    pub cur: usize,
+    /// Unknowns (interior voxels).
+    #[serde(default)]
+    pub unknowns: u64,
+}
+
+/// What the loop should do after a measurement.
+pub enum Decision {
+    /// Finish this iteration and go on.
+    Continue,
+    /// Stop with the state as it is.
+    Stop(StopReason),
+}
+
+/// One method over the finest level's stores.
+pub struct Iteration<'a> {
+    /// The hierarchy (only the finest level for SOR and Jacobi).
+    pub h: &'a Hierarchy,
+    /// Which iteration.
+    pub method: Method,
+    /// Over-relaxation factor of SOR.
+    pub omega: f64,
+}
+
+impl Iteration<'_> {
+    /// An iteration, given the method; `omega`: the SOR factor (`None`: the optimum for
+    /// the grid's longest axis).
+    #[must_use]
+    pub fn new(h: &Hierarchy, method: Method, omega: Option<f64>) -> Iteration<'_> {
+        let n = h.levels[0].spec.shape.iter().copied().max().unwrap_or(2) as f64;
+        Iteration {
+            h,
+            method,
+            omega: omega.unwrap_or_else(|| optimal_omega(n)),
+        }
+    }
+
+    /// Fine-grid sweep equivalents of one iteration (work units: one red-black sweep of
+    /// the finest level is 1).
+    #[must_use]
+    pub fn sweeps_per_iteration(&self) -> f64 {
+        match self.method {
+            Method::Sor | Method::Jacobi => 1.0,
+            Method::Multigrid => {
+                let c = self.h.cycle;
+                let n0 = self.h.levels[0].spec.num_voxels() as f64;
+                let mut w = 0.0;
+                let last = self.h.levels.len() - 1;
+                for (k, l) in self.h.levels.iter().enumerate() {
+                    let r = l.spec.num_voxels() as f64 / n0;
+                    let s = if k == last {
+                        let n = l.spec.shape.iter().copied().max().unwrap_or(2) as f64;
+                        (4.0 * n).max(20.0)
+                    } else {
+                        // Sweeps plus a residual for restriction and a prolongation.
+                        (c.pre + c.post) as f64 + 1.0
+                    };
+                    w += r * s;
+                }
+                w
+            }
+        }
+    }
+
+    /// Run the iteration from `hist` (a fresh history, or one restored from a
+    /// checkpoint) until `decide` says stop. `decide` sees the history after each
+    /// measurement (the residual of the current state is its last entry).
+    pub fn run(
+        &self,
+        hist: &mut History,
+        mut decide: impl FnMut(&History) -> Result<Decision, GridError>,
+    ) -> Result<StopReason, GridError> {
+        let fine = &self.h.levels[0];
+        let w = self.h.workers;
+        loop {
+            let cur = hist.cur;
+            // The first pass of the iteration: measures the state.
+            let first = match self.method {
+                Method::Multigrid => {
+                    debug_assert_eq!(cur, 0);
+                    self.h.pre_smooth_fine()?
+                }
+                Method::Sor => fine.sor_pass(cur, 1 - cur, self.omega, w)?,
+                Method::Jacobi => jacobi_pass(fine, cur, 1 - cur, w)?,
+            };
+            let norm = first.res_sq.sqrt();
+            hist.unknowns = first.count;
+            if hist.residual.is_empty() {
+                hist.r0 = norm;
+            }
+            hist.residual
+                .push(if hist.r0 > 0.0 { norm / hist.r0 } else { 0.0 });
+            if hist.r0 == 0.0 {
+                return Ok(StopReason::Residual);
+            }
+            if let Decision::Stop(why) = decide(hist)? {
+                return Ok(why);
+            }
+            let change = match self.method {
+                Method::Multigrid => self.h.finish_cycle()?,
+                Method::Sor | Method::Jacobi => {
+                    hist.cur = 1 - cur;
+                    first.max_change
+                }
+            };
+            hist.iterations += 1;
+            hist.max_change.push(change);
+        }
+    }
+}
+
+/// One Jacobi iteration from `u[src]` into `u[dst]`, measuring the residual of the
+/// source and the largest change (which is the largest |residual|).
+fn jacobi_pass(l: &Level, src: usize, dst: usize, workers: usize) -> Result<PassStats, GridError> {
+    let spec = &l.spec;
+    let parts = map_bounded(&spec.block_indices(), workers, |&b| {
+        let mut u = l.u[src].read_block_halo(b, 1, 0.0)?;
+        let mask = l.mask.read_block_halo(b, 1, 0)?;
+        let shape = u.shape;
+        let view = BoxView {
+            u: &mut u.data,
+            mask: &mask.data,
+            f: None,
+            shape,
+            origin: u.origin,
+        };
+        let lo = [1; 3];
+        let hi = shape.map(|c| c - 1);
+        let d = view.defects(lo, hi);
+        let inner = mask.crop(lo, spec.block_shape(b).map(|c| c as usize));
+        let old = u.crop(lo, spec.block_shape(b).map(|c| c as usize));
+        let mut st = PassStats::default();
+        let new: Vec<f64> = old
+            .iter()
+            .zip(&d)
+            .zip(&inner)
+            .map(|((&o, &d), &m)| {
+                if m == INTERIOR {
+                    let r = d / 6.0;
+                    st.res_sq += r * r;
+                    st.count += 1;
+                    st.max_change = st.max_change.max(r.abs());
+                    o + r
+                } else {
+                    o
+                }
+            })
+            .collect();
+        l.u[dst].write_block(b, &new)?;
+        Ok(st)
+    })?;
+    Ok(parts
+        .into_iter()
+        .fold(PassStats::default(), |a, p| PassStats {
+            res_sq: a.res_sq + p.res_sq,
+            count: a.count + p.count,
+            max_change: a.max_change.max(p.max_change),
+        }))
+}
+
+/// Set every voxel of generation 0 of the finest level to its starting value.
+pub fn initialize(l: &Level, eps: f64, workers: usize) -> Result<(), GridError> {
+    map_bounded(&l.spec.block_indices(), workers, |&b| {
+        let m = l.mask.read_block(b)?;
+        l.u[0].write_block(
+            b,
+            &m.iter()
+                .map(|&v| super::dirichlet::initial(v, eps))
+                .collect::<Vec<_>>(),
+        )
+    })?;
+    Ok(())
+}
+
+/// Copy every block of `src` into `dst` (same spec).
+pub fn copy_store(
+    src: &dyn BlockStore<f64>,
+    dst: &dyn BlockStore<f64>,
+    workers: usize,
+) -> Result<(), GridError> {
+    map_bounded(&src.spec().block_indices(), workers, |&b| {
+        dst.write_block(b, &src.read_block(b)?)
+    })?;
+    Ok(())
+}
+
+/// Copy every block of the labels `src` into `dst` (same grid and blocks).
+pub fn copy_u8(
+    src: &dyn BlockStore<u8>,
+    dst: &dyn BlockStore<u8>,
+    workers: usize,
+) -> Result<(), GridError> {
+    map_bounded(&src.spec().block_indices(), workers, |&b| {
+        dst.write_block(b, &src.read_block(b)?)
+    })?;
+    Ok(())
+}
