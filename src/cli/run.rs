@@ -11,7 +11,8 @@ use super::progress::Bars;
 use super::voxelize::VoxelizeArgs;
 use super::{Global, UsageError};
 
-/// Run the pipeline on a shape: today, voxelization (labels and center).
+/// Run the pipeline on a shape: today, voxelization (labels and center) and the solve
+/// (phi, multigrid; an interrupted solve resumes from its checkpoint).
 ///
 /// With no INPUT, runs on the built-in five-armed starfish, centered at its middle. Stages already done in RUN
 /// are skipped, so a run that was stopped is finished by giving the same command again;
@@ -82,9 +83,34 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
             r.timings.iter().map(|t| t.1).sum::<f64>()
         ));
     }
+    let run = harmap::run::RunDir::open(&out).map_err(harmap::Error::from)?;
+    let attrs = run.attrs().map_err(harmap::Error::from)?;
+    if attrs
+        .pointer("/stages/solve/status")
+        .and_then(serde_json::Value::as_str)
+        == Some("done")
+    {
+        g.say("solve: already done (skipped; --force redoes every stage)");
+    } else {
+        // Continue an interrupted solve from its checkpoint when there is one.
+        let resume = out.join("solve/manifest.json").exists();
+        let opts = harmap::solve::SolveOptions {
+            mem: a.opts.mem,
+            resume,
+            ..harmap::solve::SolveOptions::default()
+        };
+        let stop = super::solve::stop_flag()?;
+        let t = std::time::Instant::now();
+        let r = harmap::solve::solve(&run, &opts, &stop, &Bars::new(g))?;
+        g.say(&format!(
+            "solve: {}",
+            super::solve::summary(&r, t.elapsed().as_secs_f64())
+        ));
+    }
     g.say(&format!(
-        "{}: voxelized. The solve, trace and map stages are not built yet; see `harmap info {}`.",
+        "{}: voxelized and solved (phi in {}). The trace and map stages are not built yet; see `harmap info {}`.",
         out.display(),
+        out.join("phi").display(),
         out.display()
     ));
     Ok(())
