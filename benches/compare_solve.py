@@ -19,20 +19,21 @@ The discrete system (harmap's, src/solve):
     residual ||b - A x||_2 / ||b - A x0||_2 < rtol. harmap's residual, per unknown, is
     (mean of neighbours - phi) = (b - A x)_i / 6: the same ratio.
 
-The peers, each in its own process so that its peak RSS (from wait4) is its own:
+The peers, each in its own process, which reports its own peak RSS (VmHWM):
   * pyamg: `smoothed_aggregation_solver(A)` with its defaults, then `solve(b, x0=x0)`
     twice from the same hierarchy: plain V-cycles (accel=None, the main line) and
     V-cycle-preconditioned CG (accel='cg'). Setup = assembling A and b from the labels
     (vectorized numpy, CSR with int32 indices) + building the hierarchy. pyamg stops on
     ||b - A x|| < tol ||b|| (relative to b, not to the start), and here ||b - A x0|| is far
     smaller than ||b|| (only the unknowns next to the center start off balance), so tol
-    is set to rtol ||b - A x0|| / ||b||. pyamg runs on one core (its C++ kernels and
-    scipy's sparse products are serial).
+    is set to rtol ||b - A x0|| / ||b||. pyamg is mostly serial (its C++ kernels and
+    scipy's sparse products are; numpy's BLAS gets --threads threads).
   * SOR: benches/sor.c, compiled here with `cc -O3 -march=native -ffp-contract=off
     -fopenmp` (without -fopenmp if that fails): red-black SOR with omega =
     2 / (1 + sin(pi / n)), n the grid's longest side, on --threads OpenMP threads, the
-    residual checked every --check-every iterations (1, as harmap does). Its iterates
-    are harmap's red-black SOR's bit for bit (same colors, update formula, order of sums).
+    residual checked every --check-every iterations (1, as harmap does). Same colors and
+    omega as harmap's red-black SOR; the update is written differently, so the iterates
+    agree to rounding, not bit for bit.
 
 Reported per peer: setup, solve and total seconds (timed inside the process; the
 process's wall time, with reading the labels and writing phi, is shown too), iterations,
@@ -57,6 +58,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 INTERIOR = 2
 EPS_DEFAULT = 1e-4
 
@@ -68,8 +71,6 @@ EPS_DEFAULT = 1e-4
 
 def fixed_values(eps: float):
     """phi at each label, indexed by label: NaN where it is not a fixed value (0, 2)."""
-    import numpy as np
-
     lut = np.full(256, np.nan)
     lut[1] = 1.0
     lut[3] = 0.0
@@ -85,8 +86,6 @@ def neighbour_offsets(shape):
 
 def check_labels(labels) -> str | None:
     """Why `labels` is not a system this script (and harmap) can solve, or None."""
-    import numpy as np
-
     if labels.ndim != 3 or labels.dtype != np.uint8:
         return f"labels must be a 3-d uint8 array, got {labels.dtype} {labels.shape}"
     if int(labels.max(initial=0)) > 7:
@@ -106,7 +105,6 @@ def check_labels(labels) -> str | None:
 
 def assemble(labels, eps: float):
     """A (CSR, int32 indices), b and the flat grid index of each unknown, in C order."""
-    import numpy as np
     import scipy.sparse as sp
 
     flat = labels.ravel()
@@ -147,8 +145,6 @@ def assemble(labels, eps: float):
 
 def residual_norm(labels_flat, p, offsets, lut, x) -> float:
     """||b - A x||_2 for unknown values x, matrix-free (independent of `assemble`)."""
-    import numpy as np
-
     phi = lut[labels_flat]
     phi[p] = x
     r = -6.0 * phi[p]
@@ -163,6 +159,14 @@ def residual_norm(labels_flat, p, offsets, lut, x) -> float:
 
 
 def peak_rss_self() -> int:
+    """This process's peak RSS in bytes: VmHWM on Linux. Not getrusage's ru_maxrss, which
+    in a child also counts its parent's memory at fork (Linux carries it across exec)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
     import resource
 
     r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -170,7 +174,6 @@ def peak_rss_self() -> int:
 
 
 def pyamg_worker(a) -> int:
-    import numpy as np
     import pyamg
     import scipy
 
@@ -236,6 +239,7 @@ def pyamg_worker(a) -> int:
         phi.tofile(Path(a.out) / "phi_reference.f64")
         out["reference"] = {"rtol": a.ref_rtol, "iterations": len(residuals) - 1,
                             "rel_residual": float(np.linalg.norm(b - A @ x)) / r0}
+    out["peak_rss_process"] = peak_rss_self()
     (Path(a.out) / "pyamg.json").write_text(json.dumps(out, indent=1))
     return 0
 
@@ -245,19 +249,15 @@ def pyamg_worker(a) -> int:
 # ---------------------------------------------------------------------------------------
 
 
-def run_measured(cmd, env, log: Path):
-    """Run `cmd`; its stdout, wall seconds and own peak RSS in bytes (wait4)."""
+def run_child(cmd, env, log: Path) -> tuple[str, float]:
+    """Run `cmd`; its stdout and wall seconds. (Each child reports its own peak RSS.)"""
     t0 = time.perf_counter()
-    with open(log, "w") as out, open(log.with_suffix(".err"), "w") as err:
-        proc = subprocess.Popen(cmd, stdout=out, stderr=err, env=env)
-        _, status, usage = os.wait4(proc.pid, 0)
-        proc.returncode = os.waitstatus_to_exitcode(status)
+    p = subprocess.run(cmd, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t0
-    rss = usage.ru_maxrss if sys.platform == "darwin" else usage.ru_maxrss * 1024
-    if proc.returncode != 0:
-        sys.exit(f"error: {' '.join(map(str, cmd))} failed ({proc.returncode}):\n"
-                 f"{log.with_suffix('.err').read_text()}")
-    return log.read_text(), wall, rss
+    log.write_text(p.stdout + p.stderr)
+    if p.returncode != 0:
+        sys.exit(f"error: {' '.join(map(str, cmd))} failed ({p.returncode}):\n{p.stderr}")
+    return p.stdout, wall
 
 
 def compile_sor(cc: str, tmp: Path) -> tuple[Path, list[str]]:
@@ -316,10 +316,10 @@ def run_peers(a, labels_path: Path, shape, tmp: Path, report: dict) -> dict[str,
             cmd = [sys.executable, str(Path(__file__).resolve()), "--worker-pyamg", "--labels", str(labels_path),
                    "--shape", *map(str, shape), "--eps", repr(a.eps), "--rtol", repr(a.rtol), "--out", str(tmp),
                    "--maxiter", str(a.maxiter), "--ref-rtol", repr(ref)] + (["--no-cg"] if a.no_cg else [])
-            _, wall, rss = run_measured(cmd, env, tmp / "pyamg.log")
+            _, wall = run_child(cmd, env, tmp / "pyamg.log")
             w = json.loads((tmp / "pyamg.json").read_text())
             if rep == 0:
-                report["pyamg"] = {k: v for k, v in w.items() if k != "solves"} | {"process_peak_rss": rss}
+                report["pyamg"] = {k: v for k, v in w.items() if k != "solves"}
             for name, r in w["solves"].items():
                 key = "pyamg SA" + (" + CG" if r["accel"] else " V-cycle")
                 runs.setdefault(key, []).append({
@@ -331,12 +331,12 @@ def run_peers(a, labels_path: Path, shape, tmp: Path, report: dict) -> dict[str,
             print(f"SOR: {a.cc} {' '.join(flags)}; solving{tag} ...", flush=True)
             cmd = [str(exe), str(labels_path), *map(str, shape), repr(a.eps), repr(a.rtol),
                    str(tmp / "phi_sor.f64"), str(a.check_every), str(a.sor_max_iter)]
-            out, wall, rss = run_measured(cmd, env, tmp / "sor.log")
+            out, wall = run_child(cmd, env, tmp / "sor.log")
             r = json.loads(out)
             report["sor"] = r | {"flags": flags}
             runs.setdefault("SOR red-black (C)", []).append({
                 "setup_s": r["setup_s"], "solve_s": r["solve_s"], "total_s": r["setup_s"] + r["solve_s"],
-                "iterations": r["iterations"], "peak_rss": rss, "rel_residual": r["rel_residual"],
+                "iterations": r["iterations"], "peak_rss": r["peak_rss"], "rel_residual": r["rel_residual"],
                 "converged": r["converged"], "residual_check_s": r["residual_check_s"],
                 "process_wall_s": wall, "file": "phi_sor.f64"})
     return runs
@@ -375,7 +375,6 @@ def main() -> int:
     if a.run is None:
         ap.error("the run directory is required")
 
-    import numpy as np
     import zarr
 
     run = Path(a.run)
@@ -473,7 +472,7 @@ def print_table(peers: dict, report: dict) -> None:
             rr += "!"
         rc = "-" if r.get("rel_residual_check") is None else f"{r['rel_residual_check']:.2e}"
         it = "-" if r.get("iterations") is None else str(r["iterations"])
-        rss = "-" if r.get("peak_rss") is None else mib(r["peak_rss"])
+        rss = "-" if (r.get("peak_rss") or -1) < 0 else mib(r["peak_rss"])
         dr = "-" if r.get("max_abs_diff_reference") is None else f"{r['max_abs_diff_reference']:.2e}"
         print(f"{key:<20} {fmt_s(r['setup_s']):>8} {fmt_s(r['solve_s']):>8} {fmt_s(r['total_s']):>8} {it:>6} "
               f"{rss:>9} {rr:>9} {rc:>9} {dr:>9}")
