@@ -88,7 +88,6 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
             return Err(UsageError(format!("{}: no such file", p.display())).into());
         }
     }
-    let dir = tempfile_dir(a.dir.as_ref())?;
     let iopts = InputOptions::default();
     let source = input
         .as_ref()
@@ -106,7 +105,7 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         "N", "grid (x*y*z)", "seconds", "voxels/s", "peak RSS"
     );
     let bars = Bars::new(g);
-    let measured = (|| -> anyhow::Result<()> {
+    in_bench_dir(a.dir.as_ref(), |dir| {
         for &n in &a.n {
             let out = dir.join(format!("bench-{n}.harmap"));
             // Speed is measured whatever topology the shape has at this resolution.
@@ -129,19 +128,13 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
             std::fs::remove_dir_all(&out)?;
         }
         Ok(())
-    })();
-    if a.dir.is_none() {
-        // The directory was made for this benchmark; a given one is the user's.
-        let _ = std::fs::remove_dir_all(&dir);
-    }
-    measured
+    })
 }
 
 /// `harmap bench solve`: the standard problem at each --n, from labels to a stored phi.
 fn bench_solve(a: &Args, g: &Global) -> anyhow::Result<()> {
     use harmap::solve::{solve, SolveOptions};
     use harmap::voxelize::StandardBall;
-    let dir = tempfile_dir(a.dir.as_ref())?;
     println!(
         "harmap bench solve: standard ball (radius 0.45 N, sink radius 2), multigrid, rtol 1e-6, --mem {}, {} threads",
         a.mem,
@@ -153,7 +146,7 @@ fn bench_solve(a: &Args, g: &Global) -> anyhow::Result<()> {
     );
     let bars = Bars::new(g);
     let stop = std::sync::atomic::AtomicBool::new(false);
-    let measured = (|| -> anyhow::Result<()> {
+    in_bench_dir(a.dir.as_ref(), |dir| {
         for &n in &a.n {
             let out = dir.join(format!("bench-solve-{n}.harmap"));
             let p = StandardBall {
@@ -182,19 +175,22 @@ fn bench_solve(a: &Args, g: &Global) -> anyhow::Result<()> {
             std::fs::remove_dir_all(&out)?;
         }
         Ok(())
-    })();
-    if a.dir.is_none() {
-        let _ = std::fs::remove_dir_all(&dir);
-    }
-    measured
+    })
 }
 
-/// The directory for the benchmark's runs: the one given, or a new one in the system
-/// temp directory.
-fn tempfile_dir(given: Option<&PathBuf>) -> anyhow::Result<PathBuf> {
+/// Run `f` in the directory for the benchmark's runs: the one given, or a new one in the
+/// system temp directory, which is removed afterwards (a given one is the user's).
+fn in_bench_dir(
+    given: Option<&PathBuf>,
+    f: impl FnOnce(&std::path::Path) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
     let d = given.cloned().unwrap_or_else(|| {
         std::env::temp_dir().join(format!("harmap-bench-{}", std::process::id()))
     });
     std::fs::create_dir_all(&d)?;
-    Ok(d)
+    let measured = f(&d);
+    if given.is_none() {
+        let _ = std::fs::remove_dir_all(&d);
+    }
+    measured
 }

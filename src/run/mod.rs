@@ -357,7 +357,19 @@ impl RunDir {
         fill: T,
         compression: Compression,
     ) -> Result<ZarrStore<T>, crate::Error> {
-        let dir = self.root.join(name);
+        self.write_image(name, name, spec, fill, compression)
+    }
+
+    /// The image group `name` (OME metadata and array `0`) in the directory `dir_name`.
+    fn write_image<T: Scalar>(
+        &self,
+        dir_name: &str,
+        name: &str,
+        spec: &GridSpec,
+        fill: T,
+        compression: Compression,
+    ) -> Result<ZarrStore<T>, crate::Error> {
+        let dir = self.root.join(dir_name);
         fs::create_dir_all(&dir).map_err(io(&dir))?;
         let doc = json!({
             "zarr_format": 3,
@@ -370,7 +382,7 @@ impl RunDir {
         )?;
         Ok(ZarrStore::create(
             &self.root,
-            &format!("/{name}/0"),
+            &format!("/{dir_name}/0"),
             spec.clone(),
             fill,
             compression,
@@ -406,24 +418,7 @@ impl RunDir {
         if dir.exists() {
             fs::remove_dir_all(&dir).map_err(io(&dir))?;
         }
-        fs::create_dir_all(&dir).map_err(io(&dir))?;
-        let doc = json!({
-            "zarr_format": 3,
-            "node_type": "group",
-            "attributes": { "ome": ome_multiscales(name, spec) }
-        });
-        write_atomic(
-            &dir.join("zarr.json"),
-            serde_json::to_string_pretty(&doc).expect("json").as_bytes(),
-        )?;
-        Ok(ZarrStore::create(
-            &self.root,
-            &format!("/{tmp}/0"),
-            spec.clone(),
-            fill,
-            compression,
-            Map::new(),
-        )?)
+        self.write_image(&tmp, name, spec, fill, compression)
     }
 
     /// Move the image staged by [`RunDir::create_image_staged`] into place, replacing an

@@ -69,7 +69,6 @@ impl BoxView<'_> {
                 }
             }
         }
-        let _ = sz;
         max
     }
 
@@ -217,11 +216,11 @@ fn axis_table(origin: i64, n: usize, c_origin: i64) -> Vec<(usize, bool)> {
 }
 
 #[inline]
-fn interp(v: &[f64], t: (usize, bool), stride: usize) -> f64 {
+fn interp(v: &[f64], t: (usize, bool)) -> f64 {
     if t.1 {
-        0.5 * (v[t.0 * stride] + v[(t.0 + 1) * stride])
+        0.5 * (v[t.0] + v[t.0 + 1])
     } else {
-        v[t.0 * stride]
+        v[t.0]
     }
 }
 
@@ -247,7 +246,7 @@ pub fn prolong(
     for r in 0..cz * cy {
         let src = &e[r * cx..(r + 1) * cx];
         for (x, &t) in tx.iter().enumerate() {
-            ex[r * nx + x] = interp(src, t, 1);
+            ex[r * nx + x] = interp(src, t);
         }
     }
     // y: coarse z planes to fine y.
@@ -282,7 +281,6 @@ pub fn prolong(
             dst.copy_from_slice(a);
         }
     }
-    let _ = interp;
     out
 }
 

@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use super::boxops::BoxView;
 use super::multigrid::{Hierarchy, Level, PassStats};
 use super::stencil::optimal_omega;
-use crate::grid::{BlockStore, GridError};
+use crate::grid::{BlockStore, GridError, Scalar};
 use crate::parallel::map_bounded;
 use crate::voxelize::labels::INTERIOR;
 
@@ -231,13 +231,7 @@ fn jacobi_pass(l: &Level, src: usize, dst: usize, workers: usize) -> Result<Pass
         l.u[dst].write_block(b, &new)?;
         Ok(st)
     })?;
-    Ok(parts
-        .into_iter()
-        .fold(PassStats::default(), |a, p| PassStats {
-            res_sq: a.res_sq + p.res_sq,
-            count: a.count + p.count,
-            max_change: a.max_change.max(p.max_change),
-        }))
+    Ok(PassStats::reduce(parts))
 }
 
 /// Set every voxel of generation 0 of the finest level to its starting value.
@@ -254,22 +248,10 @@ pub fn initialize(l: &Level, eps: f64, workers: usize) -> Result<(), GridError> 
     Ok(())
 }
 
-/// Copy every block of `src` into `dst` (same spec).
-pub fn copy_store(
-    src: &dyn BlockStore<f64>,
-    dst: &dyn BlockStore<f64>,
-    workers: usize,
-) -> Result<(), GridError> {
-    map_bounded(&src.spec().block_indices(), workers, |&b| {
-        dst.write_block(b, &src.read_block(b)?)
-    })?;
-    Ok(())
-}
-
-/// Copy every block of the labels `src` into `dst` (same grid and blocks).
-pub fn copy_u8(
-    src: &dyn BlockStore<u8>,
-    dst: &dyn BlockStore<u8>,
+/// Copy every block of `src` into `dst` (same grid and blocks).
+pub fn copy_blocks<T: Scalar>(
+    src: &dyn BlockStore<T>,
+    dst: &dyn BlockStore<T>,
     workers: usize,
 ) -> Result<(), GridError> {
     map_bounded(&src.spec().block_indices(), workers, |&b| {

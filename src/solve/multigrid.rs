@@ -22,9 +22,9 @@
 //! writes only its own blocks and reduces per-block numbers in block order, so the result
 //! is the same bytes for any thread count and budget.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use super::boxops::{prolong_add, restrict, step_products, BoxView};
+use super::boxops::{prolong, prolong_add, restrict, step_products, BoxView};
 use super::stencil::optimal_omega;
 use crate::grid::{Block, BlockStore, GridError, GridSpec, MemStore, MmapStore, Scalar};
 use crate::math::{volume, Idx3};
@@ -83,11 +83,8 @@ impl StoreMaker for Scratch {
             Ok(Box::new(MemStore::new(spec.clone(), fill)))
         } else {
             let s = MmapStore::create(&self.dir.join(format!("{name}.bin")), spec.clone())?;
-            let mut zero = fill;
             // A new scratch file reads as all-zero bytes.
-            let z = vec![0u8; T::SIZE];
-            zero = if z.is_empty() { zero } else { T::read_le(&z) };
-            if fill != zero {
+            if fill != T::read_le(&vec![0u8; T::SIZE]) {
                 crate::grid::fill_with(&s, 1, |_| fill)?;
             }
             Ok(Box::new(s))
@@ -208,17 +205,6 @@ fn coarse_cover(origin: [i64; 3], shape: [usize; 3]) -> ([i64; 3], [usize; 3]) {
     (clo, [0, 1, 2].map(|a| (chi[a] - clo[a]) as usize))
 }
 
-fn u_crop(v: &BoxView<'_>, lo: [usize; 3], shape: [usize; 3]) -> Vec<f64> {
-    let mut out = Vec::with_capacity(shape.iter().product());
-    for z in 0..shape[0] {
-        for y in 0..shape[1] {
-            let o = ((lo[0] + z) * v.shape[1] + lo[1] + y) * v.shape[2] + lo[2];
-            out.extend_from_slice(&v.u[o..o + shape[2]]);
-        }
-    }
-    out
-}
-
 /// The multigrid hierarchy.
 pub struct Hierarchy {
     /// Level 0 is the finest.
@@ -240,6 +226,20 @@ pub struct PassStats {
     pub max_change: f64,
 }
 
+impl PassStats {
+    /// Combine per-block numbers in block order (the same sums for any thread count).
+    #[must_use]
+    pub fn reduce(parts: Vec<PassStats>) -> PassStats {
+        parts
+            .into_iter()
+            .fold(PassStats::default(), |a, p| PassStats {
+                res_sq: a.res_sq + p.res_sq,
+                count: a.count + p.count,
+                max_change: a.max_change.max(p.max_change),
+            })
+    }
+}
+
 fn box_of(spec: &GridSpec, b: Idx3, halo: u64) -> ([i64; 3], [usize; 3], [[bool; 2]; 3]) {
     let s = spec.block_start(b);
     let e = [0, 1, 2].map(|a| s[a] + spec.block_shape(b)[a]);
@@ -254,14 +254,42 @@ fn box_of(spec: &GridSpec, b: Idx3, halo: u64) -> ([i64; 3], [usize; 3], [[bool;
     )
 }
 
+/// A box of a level read into memory: u of one generation, the mask and f.
+struct Boxed {
+    u: Block<f64>,
+    mask: Block<u8>,
+    f: Option<Block<f64>>,
+}
+
+impl Boxed {
+    fn view(&mut self) -> BoxView<'_> {
+        BoxView {
+            u: &mut self.u.data,
+            mask: &self.mask.data,
+            f: self.f.as_ref().map(|f| &f.data[..]),
+            shape: self.u.shape,
+            origin: self.u.origin,
+        }
+    }
+}
+
 impl Level {
-    fn read<T: Scalar>(
-        store: &dyn BlockStore<T>,
+    /// Read `u[src]`, the mask and f over the box `[origin, origin + shape)`; outside the
+    /// grid u and f read 0 and nothing is an unknown.
+    fn read_box(
+        &self,
+        src: usize,
         origin: [i64; 3],
         shape: [usize; 3],
-        outside: T,
-    ) -> Result<Block<T>, GridError> {
-        store.read_region(origin, shape, outside)
+    ) -> Result<Boxed, GridError> {
+        Ok(Boxed {
+            u: self.u[src].read_region(origin, shape, 0.0)?,
+            mask: self.mask.read_region(origin, shape, 0)?,
+            f: match &self.f {
+                Some(f) => Some(f.read_region(origin, shape, 0.0)?),
+                None => None,
+            },
+        })
     }
 
     /// Pass 1 or 3 on one block: read `u[src]` over the haloed box, optionally add the
@@ -291,34 +319,20 @@ impl Level {
             (2 * sweeps + extra).max(1) as u64
         };
         let (origin, shape, shrink) = box_of(spec, b, halo);
-        let mut u = Self::read(&*self.u[src], origin, shape, 0.0)?;
-        let mask = Self::read(&*self.mask, origin, shape, 0)?;
-        let f = match &self.f {
-            Some(f) => Some(Self::read(&**f, origin, shape, 0.0)?),
-            None => None,
-        };
+        let mut bx = self.read_box(src, origin, shape)?;
         let bs = spec.block_start(b);
-        let bsh = spec.block_shape(b);
+        let bshape = spec.block_shape(b).map(|c| c as usize);
         let inner_lo = [0, 1, 2].map(|a| (bs[a] as i64 - origin[a]) as usize);
-        let inner_hi = [0, 1, 2].map(|a| inner_lo[a] + bsh[a] as usize);
+        let inner_hi = [0, 1, 2].map(|a| inner_lo[a] + bshape[a]);
         let mut st = PassStats::default();
-        let mut view = BoxView {
-            u: &mut u.data,
-            mask: &mask.data,
-            f: f.as_ref().map(|f| &f.data[..]),
-            shape,
-            origin,
-        };
+        let before = (change == Change::Src).then(|| bx.u.crop(inner_lo, bshape));
+        let mut view = bx.view();
         if measure {
-            let (s, n) = view.residual_sq(inner_lo, inner_hi);
-            st.res_sq = s;
-            st.count = n;
+            (st.res_sq, st.count) = view.residual_sq(inner_lo, inner_hi);
         }
-        let bshape = bsh.map(|c| c as usize);
-        let before = (change == Change::Src).then(|| u_crop(&view, inner_lo, bshape));
         if let Some((c, alpha)) = coarse {
             let (clo, cshape) = coarse_cover(origin, shape);
-            let e = Self::read(&*c.u[0], clo, cshape, 0.0)?;
+            let e = c.u[0].read_region(clo, cshape, 0.0)?;
             prolong_add(&mut view, &e.data, clo, cshape, alpha);
         }
         if single {
@@ -332,14 +346,14 @@ impl Level {
         if let Some(c) = restrict_into {
             restrict_block(&view, c, b)?;
         }
-        let out = u.crop(inner_lo, bshape);
+        let out = bx.u.crop(inner_lo, bshape);
         let old = match change {
             Change::None => None,
             Change::Src => before,
             Change::Dst => Some(self.u[dst].read_block(b)?),
         };
         if let Some(old) = old {
-            let m = mask.crop(inner_lo, bshape);
+            let m = bx.mask.crop(inner_lo, bshape);
             st.max_change = old
                 .iter()
                 .zip(&out)
@@ -379,13 +393,7 @@ impl Level {
                 restrict_into,
             )
         })?;
-        Ok(parts
-            .into_iter()
-            .fold(PassStats::default(), |a, p| PassStats {
-                res_sq: a.res_sq + p.res_sq,
-                count: a.count + p.count,
-                max_change: a.max_change.max(p.max_change),
-            }))
+        Ok(PassStats::reduce(parts))
     }
 
     /// The energy-minimizing length of the coarse correction: with `c` the interpolated
@@ -394,30 +402,17 @@ impl Level {
         let spec = &self.spec;
         let parts = map_bounded(&spec.block_indices(), workers, |&b| {
             let (origin, shape, _) = box_of(spec, b, 1);
-            let mut u = Self::read(&*self.u[src], origin, shape, 0.0)?;
-            let mask = Self::read(&*self.mask, origin, shape, 0)?;
-            let f = match &self.f {
-                Some(f) => Some(Self::read(&**f, origin, shape, 0.0)?),
-                None => None,
-            };
+            let mut bx = self.read_box(src, origin, shape)?;
             let (clo, cshape) = coarse_cover(origin, shape);
-            let e = Self::read(&*coarse.u[0], clo, cshape, 0.0)?;
-            let mut c = vec![0.0; shape.iter().product()];
-            let mut cview = BoxView {
-                u: &mut c,
-                mask: &mask.data,
-                f: None,
-                shape,
-                origin,
-            };
-            prolong_add(&mut cview, &e.data, clo, cshape, 1.0);
-            let view = BoxView {
-                u: &mut u.data,
-                mask: &mask.data,
-                f: f.as_ref().map(|f| &f.data[..]),
-                shape,
-                origin,
-            };
+            let e = coarse.u[0].read_region(clo, cshape, 0.0)?;
+            // The correction as applied: interpolated, on the unknowns only.
+            let mut c = prolong(&e.data, clo, cshape, origin, shape);
+            for (v, &m) in c.iter_mut().zip(&bx.mask.data) {
+                if m != INTERIOR {
+                    *v = 0.0;
+                }
+            }
+            let view = bx.view();
             let bs = spec.block_start(b);
             let lo = [0, 1, 2].map(|a| (bs[a] as i64 - origin[a]) as usize);
             let hi = [0, 1, 2].map(|a| lo[a] + spec.block_shape(b)[a] as usize);
@@ -448,19 +443,8 @@ impl Level {
             let d_shape = csh.map(|c| 2 * c + 1);
             let r_origin = d_origin.map(|c| c - 1);
             let r_shape = d_shape.map(|c| c + 2);
-            let mut u = Self::read(&*self.u[src], r_origin, r_shape, 0.0)?;
-            let mask = Self::read(&*self.mask, r_origin, r_shape, 0)?;
-            let f = match &self.f {
-                Some(f) => Some(Self::read(&**f, r_origin, r_shape, 0.0)?),
-                None => None,
-            };
-            let view = BoxView {
-                u: &mut u.data,
-                mask: &mask.data,
-                f: f.as_ref().map(|f| &f.data[..]),
-                shape: r_shape,
-                origin: r_origin,
-            };
+            let mut bx = self.read_box(src, r_origin, r_shape)?;
+            let view = bx.view();
             let d = view.defects([1; 3], r_shape.map(|c| c - 1));
             let rhs = restrict(&d, d_origin, d_shape, &cmask, cs, csh);
             cf.write_block(cb, &rhs)?;
@@ -603,12 +587,4 @@ impl Level {
     ) -> Result<PassStats, GridError> {
         self.smooth_pass(src, dst, 1, omega, None, true, Change::Src, None, workers)
     }
-}
-
-/// The coarse levels' scratch files, for removal.
-#[must_use]
-pub fn scratch_files(dir: &Path) -> Vec<PathBuf> {
-    std::fs::read_dir(dir)
-        .map(|r| r.filter_map(|e| e.ok().map(|e| e.path())).collect())
-        .unwrap_or_default()
 }

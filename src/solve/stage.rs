@@ -434,7 +434,7 @@ pub fn solve(
     // generations of phi.
     let mem0 = in_memory[0];
     let mask = maker.make::<u8>("labels", &spec, mem0, 0)?;
-    super::driver::copy_u8(&labels, &*mask, workers)?;
+    super::driver::copy_blocks(&labels, &*mask, workers)?;
     let fine = Level {
         spec: spec.clone(),
         mask,
