@@ -18,6 +18,15 @@ pub enum Error {
     /// The solve failed, was interrupted, or cannot resume.
     #[error(transparent)]
     Solve(#[from] crate::solve::SolveError),
+    /// Tracing failed or was asked for something it cannot do.
+    #[error(transparent)]
+    Trace(#[from] crate::trace::TraceError),
+    /// An export cannot be made or written.
+    #[error(transparent)]
+    Export(#[from] crate::export::ExportError),
+    /// A picture cannot be drawn or written.
+    #[error(transparent)]
+    Report(#[from] crate::report::ReportError),
 }
 
 impl Error {
@@ -26,11 +35,13 @@ impl Error {
     #[must_use]
     pub fn is_bad_input(&self) -> bool {
         match self {
-            Error::Input(_) => true,
+            Error::Input(_) | Error::Trace(_) => true,
             Error::Grid(e) => matches!(e, crate::grid::GridError::Budget { .. }),
             Error::Run(e) => e.is_bad_input(),
             Error::Voxelize(e) => e.is_bad_input(),
             Error::Solve(e) => e.is_bad_input(),
+            Error::Export(e) => matches!(e, crate::export::ExportError::Unavailable(_)),
+            Error::Report(e) => matches!(e, crate::report::ReportError::Unavailable(_)),
         }
     }
 }

@@ -9,13 +9,16 @@
 //! `*Options` struct each; grids live behind [`grid::BlockStore`] so no stage holds a
 //! whole grid in memory. This crate knows nothing of the command line.
 
+pub mod export;
 pub mod grid;
 pub mod input;
 pub mod math;
 pub mod pipeline;
 pub mod progress;
+pub mod report;
 pub mod run;
 pub mod solve;
+pub mod trace;
 pub mod voxelize;
 
 mod error;

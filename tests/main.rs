@@ -5,4 +5,5 @@ mod common;
 mod interop;
 mod meshes;
 mod solve;
+mod trace;
 mod voxelize;

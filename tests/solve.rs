@@ -412,3 +412,61 @@ fn sigint_checkpoints_and_exits_130_and_bad_resumes_are_refused() {
         assert!(String::from_utf8_lossy(&o.stderr).contains("checksum mismatch"));
     }
 }
+
+/// Interrupt a slow solve once two checkpoints exist, then damage the newest generation in
+/// `damage`'s way: the resume must say so, use the previous checkpoint, and still give
+/// the bytes of an uninterrupted run.
+fn resume_after_damage(damage: impl Fn(&Path)) {
+    let dir = tempfile::tempdir().unwrap();
+    let whole = ball(dir.path(), 40, 2.0, 16);
+    let o = slow_solve(&whole, false).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let expected = phi_bytes(&whole);
+
+    let run = ball(dir.path(), 40, 2.0, 16);
+    let mut child = slow_solve(&run, false).spawn().unwrap();
+    wait_for(&run.join("solve/manifest.prev.json"));
+    // SIGINT rather than SIGKILL, so that both checkpoints are whole before one is
+    // damaged (a kill could land while the older generation is being overwritten).
+    let ok = std::process::Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    assert_eq!(child.wait().unwrap().code(), Some(130));
+    assert!(!run.join("phi").exists(), "finished before the interrupt");
+    // Which generation the newest manifest names, and which the previous one does.
+    let gen = |name: &str| -> u64 {
+        let m: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(run.join("solve").join(name)).unwrap()).unwrap();
+        m["generation"].as_u64().unwrap()
+    };
+    let (newest, prev) = (gen("manifest.json"), gen("manifest.prev.json"));
+    assert_ne!(newest, prev);
+    damage(&run.join(format!("solve/g{newest}.bin")));
+
+    let o = slow_solve(&run, true).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("damaged") && err.contains("previous"), "{err}");
+    assert_eq!(phi_bytes(&run), expected, "resumed phi differs");
+}
+
+#[test]
+fn a_corrupted_newest_checkpoint_falls_back_to_the_previous_one() {
+    resume_after_damage(|g| {
+        let mut bytes = std::fs::read(g).unwrap();
+        let k = bytes.len() / 2;
+        bytes[k] ^= 0x40;
+        std::fs::write(g, bytes).unwrap();
+    });
+}
+
+#[test]
+fn a_torn_newest_checkpoint_falls_back_to_the_previous_one() {
+    resume_after_damage(|g| {
+        let f = std::fs::OpenOptions::new().write(true).open(g).unwrap();
+        let n = f.metadata().unwrap().len();
+        f.set_len(n / 3).unwrap();
+    });
+}

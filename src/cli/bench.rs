@@ -18,6 +18,10 @@ use super::{Global, UsageError};
 /// 1e-6, from the labels to a stored phi: seconds, cycles, fine-grid sweep
 /// equivalents, voxel updates per second and peak memory.
 ///
+/// `harmap bench trace` solves the same problem (untimed; a solved run kept in --dir is
+/// reused) and times the whole trace of --sample boundary seeds, reading u included:
+/// streamlines per second, RK45 steps per streamline, the share that reached the center.
+///
 /// `harmap bench voxelize` voxelizes a mesh (default: the armadillo of the project's
 /// test data when it is found, else the built-in starfish) at each --n and prints one
 /// line per size. Peak memory is the process's high-water mark (VmHWM), so run one size
@@ -27,6 +31,9 @@ use super::{Global, UsageError};
 ///   harmap bench voxelize --n 256 --n 512 --input armadillo.obj.gz
 ///   harmap bench solve --n 256
 ///   harmap bench solve --n 512 --mem 256MiB
+///   harmap bench solve --n 512 --mem 256MiB --dir /scratch/b --keep
+///   harmap bench trace --n 256 --sample 50000
+///   harmap bench trace --n 512 --mem 256MiB --dir /scratch/b --keep
 #[derive(clap::Args, Debug)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
@@ -45,6 +52,14 @@ pub struct Args {
     /// Where to put the temporary runs (default: the system temp directory).
     #[arg(long)]
     pub dir: Option<PathBuf>,
+    /// Keep the runs (`bench-solve-N.harmap`, with phi) in --dir instead of removing
+    /// them, e.g. to compare budgets or resume runs against them. `bench trace` reuses a
+    /// solved run it finds there.
+    #[arg(long, requires = "dir")]
+    pub keep: bool,
+    /// Seeds `bench trace` traces (a deterministic subset of the boundary voxels).
+    #[arg(long, value_name = "N", default_value_t = 50_000)]
+    pub sample: u64,
 }
 
 /// Stages `bench` can measure.
@@ -55,6 +70,9 @@ pub enum Stage {
     /// Labels -> phi, multigrid, on the standard problem (ball of radius 0.45 N, sink of
     /// radius 2).
     Solve,
+    /// The whole `harmap trace` (reading u included) of --sample boundary seeds on the
+    /// solved standard problem.
+    Trace,
 }
 
 /// Peak resident set of this process so far, bytes (Linux; 0 elsewhere).
@@ -71,8 +89,10 @@ pub fn peak_rss() -> u64 {
 
 /// Run `harmap bench`.
 pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
-    if let Stage::Solve = a.stage {
-        return bench_solve(a, g);
+    match a.stage {
+        Stage::Solve => return bench_solve(a, g),
+        Stage::Trace => return bench_trace(a, g),
+        Stage::Voxelize => {}
     }
     let input = a.input.clone().or_else(|| {
         [
@@ -172,7 +192,80 @@ fn bench_solve(a: &Args, g: &Global) -> anyhow::Result<()> {
                 r.relative_residual,
                 harmap::grid::human(peak_rss())
             );
-            std::fs::remove_dir_all(&out)?;
+            if !a.keep {
+                std::fs::remove_dir_all(&out)?;
+            }
+        }
+        Ok(())
+    })
+}
+
+/// `harmap bench trace`: the standard problem at each --n, solved (not timed, or found
+/// solved in --dir), then the whole trace of --sample boundary seeds, timed.
+fn bench_trace(a: &Args, g: &Global) -> anyhow::Result<()> {
+    use harmap::run::RunDir;
+    use harmap::solve::{solve, SolveOptions};
+    use harmap::trace::{trace, TraceOptions};
+    use harmap::voxelize::StandardBall;
+    println!(
+        "harmap bench trace: standard ball (radius 0.45 N, sink radius 2), {} boundary seeds, --mem {}, {} threads",
+        a.sample,
+        a.mem,
+        rayon::current_num_threads()
+    );
+    println!(
+        "{:>6} {:>8} {:>9} {:>13} {:>11} {:>9} {:>12}",
+        "N", "seeds", "seconds", "streamlines/s", "steps/line", "reached", "peak RSS"
+    );
+    let bars = Bars::new(g);
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    in_bench_dir(a.dir.as_ref(), |dir| {
+        for &n in &a.n {
+            let out = dir.join(format!("bench-solve-{n}.harmap"));
+            let solved = RunDir::open(&out).ok().filter(|r| {
+                r.root().join("u/0").exists()
+                    && r.attrs().ok().and_then(|v| {
+                        v.pointer("/stages/solve/status")
+                            .and_then(|s| s.as_str().map(|s| s == "done"))
+                    }) == Some(true)
+            });
+            let run = if let Some(r) = solved {
+                r
+            } else {
+                let p = StandardBall {
+                    n,
+                    sink_radius: 2.0,
+                    chunk: 64,
+                    mem: a.mem,
+                };
+                let (run, _) = harmap::pipeline::standard_ball_run(&p, &out, true, &bars)?;
+                let opts = SolveOptions {
+                    mem: a.mem,
+                    checkpoint_every: 0.0,
+                    ..SolveOptions::default()
+                };
+                solve(&run, &opts, &stop, &bars)?;
+                run
+            };
+            let opts = TraceOptions {
+                sample: Some(a.sample),
+                mem: a.mem,
+                ..TraceOptions::default()
+            };
+            let t = Instant::now();
+            let r = trace(&run, &opts, &bars)?;
+            let secs = t.elapsed().as_secs_f64();
+            println!(
+                "{n:>6} {:>8} {secs:>9.3} {:>13.0} {:>11.1} {:>8.2}% {:>12}",
+                r.seeds,
+                r.seeds as f64 / secs,
+                r.mean_steps,
+                100.0 * r.reached_fraction,
+                harmap::grid::human(peak_rss())
+            );
+            if !a.keep {
+                std::fs::remove_dir_all(&out)?;
+            }
         }
         Ok(())
     })

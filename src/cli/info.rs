@@ -60,6 +60,19 @@ fn summary(attrs: &Value) -> Value {
             "resumed_at": v["resumed_at"],
         });
     }
+    if let Some(v) = attrs.pointer("/stages/trace/result") {
+        s["trace"] = json!({
+            "status": attrs.pointer("/stages/trace/status"),
+            "seconds": attrs.pointer("/stages/trace/seconds"),
+            "seeds": v["seeds"],
+            "stops": v["stops"],
+            "reached_fraction": v["reached_fraction"],
+            "mean_steps": v["mean_steps"],
+            "stop_radius": v["stop_radius"],
+            "collisions": v["collisions"],
+            "surface": v["surface"],
+        });
+    }
     s
 }
 
@@ -170,6 +183,51 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
             v["unknowns"]
         )?;
         writeln!(out, "residual: {}", hist.join(" "))?;
+    }
+    if let Some(v) = attrs.pointer("/stages/trace/result") {
+        let stops: Vec<String> = v["stops"]
+            .as_object()
+            .map(|m| m.iter().map(|(k, n)| format!("{k} {n}")).collect())
+            .unwrap_or_default();
+        writeln!(
+            out,
+            "trace:    {} seeds ({}), {:.3}% reached the center; {}; {:.1} steps per line, stop radius {} voxels",
+            v["seeds"],
+            attrs
+                .pointer("/stages/trace/options/seeds")
+                .and_then(Value::as_str)
+                .unwrap_or("?"),
+            100.0 * v["reached_fraction"].as_f64().unwrap_or(f64::NAN),
+            stops.join(", "),
+            v["mean_steps"].as_f64().unwrap_or(f64::NAN),
+            v["stop_radius"]
+        )?;
+        writeln!(
+            out,
+            "sphere:   {} seeds within {} degrees of a seed more than {} voxels away",
+            v.pointer("/collisions/seeds").unwrap_or(&Value::Null),
+            v.pointer("/collisions/angle_deg").unwrap_or(&Value::Null),
+            v.pointer("/collisions/far_voxels").unwrap_or(&Value::Null),
+        )?;
+        if let Some(m) = v.get("surface").filter(|m| !m.is_null()) {
+            let q = |k: &str, f: &str| {
+                m.pointer(&format!("/{k}/{f}"))
+                    .and_then(Value::as_f64)
+                    .unwrap_or(f64::NAN)
+            };
+            writeln!(
+                out,
+                "surface:  {} of {} triangles flipped ({} degenerate); log area ratio p05/p50/p95 {:.2}/{:.2}/{:.2}; conformal distortion p50/p95 {:.2}/{:.2}",
+                m["flipped"],
+                m["measured"],
+                m["degenerate"],
+                q("log_area_ratio", "p05"),
+                q("log_area_ratio", "p50"),
+                q("log_area_ratio", "p95"),
+                q("conformal", "p50"),
+                q("conformal", "p95"),
+            )?;
+        }
     }
     Ok(())
 }

@@ -4,11 +4,14 @@
 //! (SIGINT/SIGTERM) with the solve checkpointed. A closed pipe on
 //! stdout (`harmap info RUN | head`) counts as success.
 
+mod atlas;
 mod bench;
+mod export;
 mod info;
 mod progress;
 mod run;
 mod solve;
+mod trace;
 mod voxelize;
 
 use std::fmt::Write as _;
@@ -69,6 +72,9 @@ enum Command {
     Run(run::Args),
     Voxelize(voxelize::Args),
     Solve(solve::Args),
+    Trace(trace::Args),
+    Atlas(atlas::Args),
+    Export(export::Args),
     Info(info::Args),
     Bench(bench::Args),
 }
@@ -169,6 +175,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Run(a) => run::run(&a, &global),
         Command::Voxelize(a) => voxelize::run(&a, &global),
         Command::Solve(a) => solve::run(&a, &global),
+        Command::Trace(a) => trace::run(&a, &global),
+        Command::Atlas(a) => atlas::run(&a, &global),
+        Command::Export(a) => export::run(&a, &global),
         Command::Info(a) => info::run(&a, &global),
         Command::Bench(a) => bench::run(&a, &global),
     }

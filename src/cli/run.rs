@@ -11,12 +11,14 @@ use super::progress::Bars;
 use super::voxelize::VoxelizeArgs;
 use super::{Global, UsageError};
 
-/// Run the pipeline on a shape: today, voxelization (labels and center) and the solve
-/// (phi, multigrid; an interrupted solve resumes from its checkpoint).
+/// Run the pipeline on a shape: voxelization (labels and center), the solve (phi,
+/// multigrid; an interrupted solve resumes from its checkpoint), the trace (streamlines
+/// from the surface's vertices, or from the boundary voxels for other inputs) and the
+/// atlas picture (RUN's name with .atlas.png). The full-volume map is not built yet.
 ///
-/// With no INPUT, runs on the built-in five-armed starfish, centered at its middle. Stages already done in RUN
-/// are skipped, so a run that was stopped is finished by giving the same command again;
-/// --force starts over.
+/// With no INPUT, runs on the built-in five-armed starfish, centered at its middle.
+/// Stages already done in RUN are skipped, so a run that was stopped is finished by
+/// giving the same command again; --force starts over.
 ///
 /// Examples:
 ///   harmap run                                 # the built-in starfish -> starfish.harmap
@@ -107,18 +109,47 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
             super::solve::summary(&r, t.elapsed().as_secs_f64())
         ));
     }
+    let attrs = run.attrs().map_err(harmap::Error::from)?;
+    if attrs
+        .pointer("/stages/trace/status")
+        .and_then(serde_json::Value::as_str)
+        == Some("done")
+        && out.join("seeds").exists()
+    {
+        g.say("trace: already done (skipped; --force redoes every stage)");
+    } else {
+        // Surface seeds when the input is a mesh: the bijectivity numbers need triangles.
+        let is_mesh = harmap::trace::seeds::input_surface(&attrs)
+            .ok()
+            .flatten()
+            .is_some();
+        let opts = harmap::trace::TraceOptions {
+            seeds: if is_mesh {
+                harmap::trace::SeedKind::Surface
+            } else {
+                harmap::trace::SeedKind::Boundary
+            },
+            mem: a.opts.mem,
+            ..harmap::trace::TraceOptions::default()
+        };
+        let t = std::time::Instant::now();
+        let r = harmap::trace::trace(&run, &opts, &Bars::new(g))?;
+        g.say(&format!(
+            "trace: {}",
+            super::trace::summary(&r, t.elapsed().as_secs_f64())
+        ));
+    }
+    let atlas = out.with_extension("atlas.png");
+    harmap::report::atlas(&run, &atlas, false, harmap::report::ColorBy::Axis)?;
     g.say(&format!(
-        "{}: voxelized and solved (phi in {}). The trace and map stages are not built yet; see `harmap info {}`.",
+        "{}: voxelized, solved and traced; the atlas is {}. The full-volume map is not built yet; see `harmap info {}`.",
         out.display(),
-        out.join("phi").display(),
+        atlas.display(),
         out.display()
     ));
     Ok(())
 }
 
-/// Whether `out` holds a finished voxelization of `input` with `opts`. A finished one of
-/// another input or other options is an error: it needs --force, so no stale result is
-/// silently reused.
 fn voxelize_done(
     out: &std::path::Path,
     input: Option<&std::path::Path>,

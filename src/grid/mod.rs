@@ -19,7 +19,7 @@ pub use memory::MemStore;
 pub use mmap::MmapStore;
 pub use spec::GridSpec;
 pub use store::{fill_with, BlockStore, GridError, Scalar};
-pub use zarr::{fs_store, Compression, ZarrStore};
+pub use zarr::{fs_store, read_table, write_table, Compression, ZarrStore};
 
 #[cfg(test)]
 mod tests {

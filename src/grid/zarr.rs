@@ -168,3 +168,86 @@ impl<T: Scalar> BlockStore<T> for ZarrStore<T> {
         res.map_err(|e| zerr(&self.path, e))
     }
 }
+
+/// Rows per chunk of a table column.
+const TABLE_CHUNK_ROWS: u64 = 1 << 16;
+
+/// Write a table column: the Zarr v3 array `path` of shape `[rows]` (`cols == 0`) or
+/// `[rows, cols]` (C order), chunked by rows, zstd-compressed, with dimension names
+/// `["row"]` or `["row", "col"]`.
+pub fn write_table<T: Scalar>(
+    root: &Path,
+    path: &str,
+    cols: u64,
+    data: &[T],
+    fill: T,
+) -> Result<(), GridError> {
+    let width = cols.max(1);
+    let rows = data.len() as u64 / width;
+    assert_eq!(
+        rows * width,
+        data.len() as u64,
+        "table data is not rows x cols"
+    );
+    let (shape, chunk, names) = if cols == 0 {
+        (vec![rows], vec![TABLE_CHUNK_ROWS], vec!["row"])
+    } else {
+        (
+            vec![rows, cols],
+            vec![TABLE_CHUNK_ROWS, cols],
+            vec!["row", "col"],
+        )
+    };
+    let store = fs_store(root)?;
+    let mut builder = ArrayBuilder::new(shape, chunk, T::ZARR_DTYPE, fill);
+    builder
+        .dimension_names(Some(names))
+        .bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(3, false))]);
+    let array = builder.build(store, path).map_err(|e| zerr(path, e))?;
+    array.store_metadata().map_err(|e| zerr(path, e))?;
+    let per = (TABLE_CHUNK_ROWS * width) as usize;
+    for (c, part) in data.chunks(per).enumerate() {
+        let mut full = part.to_vec();
+        full.resize(per, fill);
+        let idx: Vec<u64> = if cols == 0 {
+            vec![c as u64]
+        } else {
+            vec![c as u64, 0]
+        };
+        array.store_chunk(&idx, &full).map_err(|e| zerr(path, e))?;
+    }
+    Ok(())
+}
+
+/// Read a table column written by [`write_table`]: its shape and its values (C order).
+pub fn read_table<T: Scalar>(root: &Path, path: &str) -> Result<(Vec<u64>, Vec<T>), GridError> {
+    let store = fs_store(root)?;
+    let array = Array::open(store, path).map_err(|e| zerr(path, e))?;
+    let shape = array.shape().to_vec();
+    if shape.is_empty() || shape.len() > 2 {
+        return Err(zerr(
+            path,
+            format!("a table has 1 or 2 dimensions, not {}", shape.len()),
+        ));
+    }
+    let rows = shape[0];
+    let width = shape.get(1).copied().unwrap_or(1);
+    let chunk_rows = array
+        .chunk_shape(&vec![0; shape.len()])
+        .map_err(|e| zerr(path, e))?[0]
+        .get();
+    let mut out: Vec<T> = Vec::with_capacity((rows * width) as usize);
+    let mut c = 0u64;
+    while c * chunk_rows < rows {
+        let idx: Vec<u64> = if shape.len() == 1 {
+            vec![c]
+        } else {
+            vec![c, 0]
+        };
+        let v: Vec<T> = array.retrieve_chunk(&idx).map_err(|e| zerr(path, e))?;
+        let take = ((rows - c * chunk_rows).min(chunk_rows) * width) as usize;
+        out.extend_from_slice(&v[..take]);
+        c += 1;
+    }
+    Ok((shape, out))
+}

@@ -241,7 +241,7 @@ pub fn initialize(l: &Level, eps: f64, workers: usize) -> Result<(), GridError> 
         l.u[0].write_block(
             b,
             &m.iter()
-                .map(|&v| super::dirichlet::initial(v, eps))
+                .map(|&v| super::dirichlet::initial_u(v, eps))
                 .collect::<Vec<_>>(),
         )
     })?;

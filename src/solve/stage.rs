@@ -5,9 +5,10 @@
 //! `manifest.json` (the previous one kept as `manifest.prev.json`). A checkpoint writes
 //! the state to the generation the current manifest does not name, fsyncs it, then
 //! commits a new manifest atomically; a torn or damaged generation fails its checksum and
-//! the previous manifest is used. When the solve finishes, phi is written to
-//! `RUN/phi.partial/` and renamed to `RUN/phi/`, the stage is recorded, and `RUN/solve/`
-//! is removed.
+//! the previous manifest is used. The state is u = 1 - phi (see [`super::dirichlet`]).
+//! When the solve finishes, phi and u are written to `RUN/phi.partial/` and
+//! `RUN/u.partial/` and renamed into place, the stage is recorded, and `RUN/solve/` is
+//! removed.
 
 use std::fs;
 use std::io::{BufReader, BufWriter, Read, Write};
@@ -140,6 +141,9 @@ pub struct SolveReport {
     /// Levels held in memory (the rest in scratch files).
     pub in_memory: Vec<bool>,
 }
+
+/// Version of the checkpoint files (2: the state is u = 1 - phi).
+const CHECKPOINT_FORMAT: u32 = 2;
 
 #[derive(Debug, Serialize, Deserialize)]
 struct Manifest {
@@ -274,6 +278,12 @@ impl Checkpoints {
                 why.push(format!("{name}: missing or unreadable"));
                 continue;
             };
+            if m.format != CHECKPOINT_FORMAT {
+                return Err(bad(format!(
+                    "{name} is checkpoint format {}, this harmap writes {CHECKPOINT_FORMAT}; run without --resume to start over",
+                    m.format
+                )));
+            }
             if m.identity != self.identity {
                 return Err(bad(format!(
                     "{name} was made for other labels or other solve options; run without --resume to start over"
@@ -309,7 +319,7 @@ impl Checkpoints {
         h.cur = 0;
         h.residual.pop();
         let m = Manifest {
-            format: 1,
+            format: CHECKPOINT_FORMAT,
             identity: self.identity.clone(),
             generation,
             sha256,
@@ -539,18 +549,24 @@ pub fn solve(
         .into());
     }
 
-    // phi: NaN outside the problem, staged then renamed into place.
-    let out = run.create_image_staged::<f64>("phi", &spec, f64::NAN, Compression::Zstd(1))?;
+    // phi = 1 - u for users, and u itself (the precise one, for the stages after);
+    // NaN outside the problem; staged then renamed into place.
+    let out_phi = run.create_image_staged::<f64>("phi", &spec, f64::NAN, Compression::Zstd(1))?;
+    let out_u = run.create_image_staged::<f64>("u", &spec, f64::NAN, Compression::Zstd(1))?;
     let cur = &*h.levels[0].u[hist.cur];
-    progress.start("solve: writing phi", spec.num_blocks());
+    progress.start("solve: writing phi and u", spec.num_blocks());
     crate::parallel::map_bounded(&spec.block_indices(), workers, |&b| {
-        let r = out.write_block(b, &cur.read_block(b)?);
+        let u = cur.read_block(b)?;
+        out_u.write_block(b, &u)?;
+        let phi: Vec<f64> = u.iter().map(|&v| 1.0 - v).collect();
+        out_phi.write_block(b, &phi)?;
         progress.advance(1);
-        r
+        Ok::<_, GridError>(())
     })?;
     progress.finish();
     let sweep_equivalents = it.sweeps_per_iteration() * hist.iterations as f64;
     drop(h);
+    run.commit_image("u")?;
     run.commit_image("phi")?;
     let report = SolveReport {
         method: opts.method,

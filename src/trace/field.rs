@@ -1,0 +1,235 @@
+//! The direction field of a tile: node directions of steepest descent of phi,
+//! trilinearly interpolated.
+//!
+//! The gradient of the trilinear interpolant of phi (the paper's eq. 6) jumps across cell
+//! faces, which an adaptive integrator pays for with rejected steps at every face. So
+//! the direction is taken at the grid nodes and interpolated trilinearly: a continuous
+//! field. At a node it is grad(u)/|grad(u)| for u = 1 - phi (central differences of the
+//! f64 u, one-sided where a neighbour has no value), so -grad(phi) whatever its size:
+//! down a thin arm |grad(phi)| falls to 1e-22 and below, which a stored gradient would
+//! flush to zero but a unit vector keeps. A node's direction depends only on u at the
+//! node and its six neighbours, so every tile that holds a node holds the same value,
+//! and a streamline does not depend on the tiling.
+
+use glam::DVec3;
+
+use crate::grid::Block;
+
+/// Why the field has no direction at a point.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NoDirection {
+    /// A corner of the point's cell has no phi (outside the solved region or the grid).
+    Outside,
+    /// The interpolated gradient vanishes.
+    Flat,
+}
+
+/// Node values of one tile and its halo: the unit direction of descent of phi (x, y,
+/// z; zero where it vanishes) and u, or NaN u where a node has no value.
+pub struct Tile {
+    /// Grid index `[z, y, x]` of the first node held.
+    pub origin: [i64; 3],
+    /// Nodes held, `[z, y, x]`.
+    pub shape: [usize; 3],
+    nodes: Vec<[f32; 4]>,
+}
+
+/// floor(x) as an integer without a libm call (x finite and well inside i64).
+#[inline]
+fn floor(x: f64) -> i64 {
+    let i = x as i64;
+    i - i64::from((i as f64) > x)
+}
+
+impl Tile {
+    /// Node directions over the box `[origin, origin + shape)` from `u` = 1 - phi, which
+    /// must hold that box with one more node on every side (NaN where there is no value).
+    #[must_use]
+    pub fn from_u(phi: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Self {
+        debug_assert!((0..3).all(|a| phi.origin[a] == origin[a] - 1));
+        debug_assert!((0..3).all(|a| phi.shape[a] == shape[a] + 2));
+        let [sz, sy, sx] = phi.shape;
+        let strides = [sy * sx, sx, 1];
+        let mut nodes = Vec::with_capacity(shape[0] * shape[1] * shape[2]);
+        for z in 0..shape[0] {
+            for y in 0..shape[1] {
+                for x in 0..shape[2] {
+                    let o = phi.offset(z + 1, y + 1, x + 1);
+                    let p0 = phi.data[o];
+                    if p0.is_nan() {
+                        nodes.push([0.0, 0.0, 0.0, f32::NAN]);
+                        continue;
+                    }
+                    let mut g = [0.0f64; 3];
+                    // Axis a of the gradient (x, y, z) is array axis 2 - a.
+                    for (a, ga) in g.iter_mut().enumerate() {
+                        let s = strides[2 - a];
+                        let (m, p) = (phi.data[o - s], phi.data[o + s]);
+                        *ga = match (m.is_nan(), p.is_nan()) {
+                            (false, false) => 0.5 * (p - m),
+                            (true, false) => p - p0,
+                            (false, true) => p0 - m,
+                            (true, true) => 0.0,
+                        };
+                    }
+                    let n = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+                    let d = if n > 0.0 && n.is_finite() {
+                        g.map(|c| (c / n) as f32)
+                    } else {
+                        [0.0; 3]
+                    };
+                    nodes.push([d[0], d[1], d[2], p0 as f32]);
+                }
+            }
+        }
+        let _ = sz;
+        Self {
+            origin,
+            shape,
+            nodes,
+        }
+    }
+
+    /// Bytes a tile of `shape` nodes holds.
+    #[must_use]
+    pub fn bytes(shape: [usize; 3]) -> u64 {
+        (shape[0] * shape[1] * shape[2] * std::mem::size_of::<[f32; 4]>()) as u64
+    }
+
+    /// The local index of the cell of `p` (voxel coordinates x, y, z) if the tile holds
+    /// all eight of its nodes.
+    #[inline]
+    fn cell(&self, p: DVec3) -> Option<[usize; 3]> {
+        let c = [floor(p.z), floor(p.y), floor(p.x)];
+        let mut l = [0usize; 3];
+        for a in 0..3 {
+            let v = c[a] - self.origin[a];
+            if v < 0 || v + 1 >= self.shape[a] as i64 {
+                return None;
+            }
+            l[a] = v as usize;
+        }
+        Some(l)
+    }
+
+    /// Whether the cell of `p` (voxel coordinates x, y, z) lies inside this tile's nodes.
+    #[inline]
+    #[must_use]
+    pub fn holds(&self, p: DVec3) -> bool {
+        self.cell(p).is_some()
+    }
+
+    /// The interpolated node directions (the direction of descent of phi, not unit
+    /// length between nodes) and u at `p` (voxel coordinates x, y, z). Outside when the
+    /// tile does not hold the cell or a corner has no value.
+    #[inline]
+    pub fn sample(&self, p: DVec3) -> Result<(DVec3, f64), NoDirection> {
+        let [lz, ly, lx] = self.cell(p).ok_or(NoDirection::Outside)?;
+        let tx = p.x - (lx as i64 + self.origin[2]) as f64;
+        let ty = p.y - (ly as i64 + self.origin[1]) as f64;
+        let tz = p.z - (lz as i64 + self.origin[0]) as f64;
+        let (sy, sx) = (self.shape[1], self.shape[2]);
+        let base = (lz * sy + ly) * sx + lx;
+        let n = &self.nodes;
+        let corners = [
+            (base, (1.0 - tz) * (1.0 - ty)),
+            (base + sx, (1.0 - tz) * ty),
+            (base + sy * sx, tz * (1.0 - ty)),
+            (base + sy * sx + sx, tz * ty),
+        ];
+        let mut acc = [0.0f64; 4];
+        for (row, wzy) in corners {
+            let (a, b) = (n[row], n[row + 1]);
+            let (wa, wb) = (wzy * (1.0 - tx), wzy * tx);
+            for k in 0..4 {
+                acc[k] += wa * f64::from(a[k]) + wb * f64::from(b[k]);
+            }
+        }
+        // A corner without a value is NaN, which survives any weight, even zero.
+        if acc[3].is_nan() {
+            return Err(NoDirection::Outside);
+        }
+        Ok((DVec3::new(acc[0], acc[1], acc[2]), acc[3]))
+    }
+
+    /// The unit direction of descent of phi at `p`. Flat where the node directions
+    /// around `p` cancel (a ridge between two basins) or vanish.
+    #[inline]
+    pub fn direction(&self, p: DVec3) -> Result<DVec3, NoDirection> {
+        let (g, _) = self.sample(p)?;
+        let n = g.length();
+        if n.is_nan() || n <= 1e-6 {
+            return Err(NoDirection::Flat);
+        }
+        Ok(g / n)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// u linear in x, y and z: every node direction is the normalized gradient.
+    #[test]
+    fn linear_u_has_its_exact_direction() {
+        let n = 8usize;
+        let mut u = Block::filled([-1, -1, -1], [n + 2; 3], 0.0f64);
+        for z in 0..n + 2 {
+            for y in 0..n + 2 {
+                for x in 0..n + 2 {
+                    let o = u.offset(z, y, x);
+                    u.data[o] = 0.5 * x as f64 - 0.25 * y as f64 + 0.125 * z as f64;
+                }
+            }
+        }
+        let t = Tile::from_u(&u, [0, 0, 0], [n; 3]);
+        let p = DVec3::new(3.3, 2.7, 5.9);
+        assert!(t.holds(p));
+        let (g, v) = t.sample(p).unwrap();
+        let want = DVec3::new(0.5, -0.25, 0.125).normalize();
+        assert!((g - want).length() < 1e-6);
+        // u at p in the shifted frame of the block (node (0,0,0) is at local index 1).
+        let exact = 0.5 * (p.x + 1.0) - 0.25 * (p.y + 1.0) + 0.125 * (p.z + 1.0);
+        assert!((v - exact).abs() < 1e-5);
+        assert!((t.direction(p).unwrap() - want).length() < 1e-6);
+        assert!(
+            !t.holds(DVec3::new(7.5, 1.0, 1.0)),
+            "cell past the last node"
+        );
+    }
+
+    /// Down a thin arm u falls to 1e-22 and less: the direction must survive.
+    #[test]
+    fn tiny_gradients_keep_their_direction() {
+        let n = 6usize;
+        let mut u = Block::filled([-1, -1, -1], [n + 2; 3], 0.0f64);
+        for z in 0..n + 2 {
+            for y in 0..n + 2 {
+                for x in 0..n + 2 {
+                    let o = u.offset(z, y, x);
+                    u.data[o] = 1e-30 * (-(x as f64)).exp() * (1.0 + 0.1 * y as f64);
+                }
+            }
+        }
+        let t = Tile::from_u(&u, [0, 0, 0], [n; 3]);
+        let d = t.direction(DVec3::new(2.5, 2.5, 2.5)).unwrap();
+        assert!(d.x < -0.9 && d.y > 0.0, "{d}");
+    }
+
+    #[test]
+    fn missing_corners_and_flat_regions_give_no_direction() {
+        let n = 6usize;
+        let mut u = Block::filled([-1, -1, -1], [n + 2; 3], 0.25f64);
+        let o = u.offset(4, 4, 4);
+        u.data[o] = f64::NAN; // node (3, 3, 3)
+        let t = Tile::from_u(&u, [0, 0, 0], [n; 3]);
+        assert_eq!(
+            t.direction(DVec3::new(2.5, 2.5, 2.5)),
+            Err(NoDirection::Outside)
+        );
+        assert_eq!(
+            t.direction(DVec3::new(0.5, 0.5, 0.5)),
+            Err(NoDirection::Flat)
+        );
+    }
+}

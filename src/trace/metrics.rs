@@ -1,0 +1,269 @@
+//! Bijectivity and distortion of the boundary -> sphere map (the paper's future work).
+//!
+//! - flipped triangles: a surface triangle whose image on the sphere (the flat triangle
+//!   of its three sphere points) faces inward, when the surface's faces outward;
+//! - collisions: seeds whose sphere points lie within a tiny angle of the sphere point
+//!   of a seed that is far from them on the shape (two parts of the surface landing on
+//!   one place of the sphere);
+//! - area distortion: per triangle, log of (its share of the sphere's area) over (its
+//!   share of the surface's area); 0 where the map preserves area;
+//! - conformal distortion: per triangle, the ratio of the singular values of the linear
+//!   map from the surface triangle to its sphere triangle; 1 where angles are kept.
+
+use std::collections::HashMap;
+
+use glam::{DVec2, DVec3};
+use serde::Serialize;
+
+/// Quantiles of a distribution.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Quantiles {
+    /// 5th percentile.
+    pub p05: f64,
+    /// Median.
+    pub p50: f64,
+    /// 95th percentile.
+    pub p95: f64,
+    /// Largest value.
+    pub max: f64,
+}
+
+impl Quantiles {
+    fn of(mut v: Vec<f64>) -> Self {
+        if v.is_empty() {
+            return Self::default();
+        }
+        v.sort_by(f64::total_cmp);
+        let q = |f: f64| v[((v.len() - 1) as f64 * f).round() as usize];
+        Self {
+            p05: q(0.05),
+            p50: q(0.5),
+            p95: q(0.95),
+            max: v[v.len() - 1],
+        }
+    }
+}
+
+/// The numbers of a surface's sphere map.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct SurfaceMetrics {
+    /// Triangles of the surface.
+    pub triangles: u64,
+    /// Triangles with all three vertices on the sphere (reached the center).
+    pub measured: u64,
+    /// Triangles whose sphere image faces inward.
+    pub flipped: u64,
+    /// Triangles whose sphere image has no area.
+    pub degenerate: u64,
+    /// log(sphere area share / surface area share) per measured triangle.
+    pub log_area_ratio: Quantiles,
+    /// Ratio of singular values of the triangle map (1 = conformal).
+    pub conformal: Quantiles,
+}
+
+/// Seeds landing on top of seeds from elsewhere.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Collisions {
+    /// The angle below which two sphere points count as one place (degrees).
+    pub angle_deg: f64,
+    /// The distance on the shape beyond which two seeds count as different parts
+    /// (voxels).
+    pub far_voxels: f64,
+    /// Seeds with such a neighbour.
+    pub seeds: u64,
+}
+
+/// Flips and distortion of the map `sphere[v]` (unit vectors; `None` where the seed did
+/// not reach the center) of a surface whose triangles face outward.
+#[must_use]
+pub fn surface(
+    positions: &[DVec3],
+    triangles: &[[u32; 3]],
+    sphere: &[Option<DVec3>],
+) -> SurfaceMetrics {
+    let mut m = SurfaceMetrics {
+        triangles: triangles.len() as u64,
+        ..SurfaceMetrics::default()
+    };
+    let mut kept = Vec::new();
+    let (mut area_s, mut area_m) = (0.0, 0.0);
+    for t in triangles {
+        let [a, b, c] = t.map(|i| i as usize);
+        let (Some(sa), Some(sb), Some(sc)) = (sphere[a], sphere[b], sphere[c]) else {
+            continue;
+        };
+        m.measured += 1;
+        let ns = (sb - sa).cross(sc - sa);
+        let orient = ns.dot(sa + sb + sc);
+        if orient == 0.0 {
+            m.degenerate += 1;
+            continue;
+        }
+        if orient < 0.0 {
+            m.flipped += 1;
+        }
+        let (pa, pb, pc) = (positions[a], positions[b], positions[c]);
+        let am = 0.5 * (pb - pa).cross(pc - pa).length();
+        let asph = 0.5 * ns.length();
+        if am <= 0.0 {
+            continue;
+        }
+        area_s += asph;
+        area_m += am;
+        kept.push((am, asph, [pa, pb, pc], [sa, sb, sc]));
+    }
+    let mut log_area = Vec::with_capacity(kept.len());
+    let mut conf = Vec::with_capacity(kept.len());
+    for (am, asph, p, s) in kept {
+        log_area.push(((asph / area_s) / (am / area_m)).ln());
+        conf.push(conformal_ratio(p, s));
+    }
+    m.log_area_ratio = Quantiles::of(log_area);
+    m.conformal = Quantiles::of(conf);
+    m
+}
+
+/// Coordinates of a triangle in its own plane: a at 0, b on the first axis.
+fn planar(t: [DVec3; 3]) -> Option<[DVec2; 2]> {
+    let e1 = t[1] - t[0];
+    let e2 = t[2] - t[0];
+    let u = e1.try_normalize()?;
+    let n = e1.cross(e2);
+    let v = n.cross(u).try_normalize()?;
+    Some([DVec2::new(e1.dot(u), 0.0), DVec2::new(e2.dot(u), e2.dot(v))])
+}
+
+/// sigma_max / sigma_min of the linear map taking triangle `p` to triangle `s`.
+fn conformal_ratio(p: [DVec3; 3], s: [DVec3; 3]) -> f64 {
+    let (Some(a), Some(b)) = (planar(p), planar(s)) else {
+        return f64::INFINITY;
+    };
+    // J * [a0 a1] = [b0 b1] (columns), J = B A^-1.
+    let am = glam::DMat2::from_cols(a[0], a[1]);
+    let bm = glam::DMat2::from_cols(b[0], b[1]);
+    let j = bm * am.inverse();
+    // Singular values of a 2x2 matrix from its Frobenius norm and determinant.
+    let f2 = j.x_axis.length_squared() + j.y_axis.length_squared();
+    let det = j.determinant().abs();
+    let disc = (f2 * f2 - 4.0 * det * det).max(0.0).sqrt();
+    let s1 = f64::midpoint(f2, disc).sqrt();
+    let s2 = ((f2 - disc) / 2.0).max(0.0).sqrt();
+    if s2 > 0.0 {
+        s1 / s2
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// Count the seeds whose sphere point lies within `angle_deg` of the sphere point of a
+/// seed more than `far` away on the shape (`positions` in voxels).
+#[must_use]
+pub fn collisions(
+    positions: &[DVec3],
+    sphere: &[Option<DVec3>],
+    angle_deg: f64,
+    far: f64,
+) -> Collisions {
+    // A hash grid of cells of the chord length of the angle: neighbours within it are in
+    // the 27 cells around a point's cell.
+    let chord = 2.0 * (angle_deg.to_radians() / 2.0).sin();
+    let cell = |p: DVec3| -> [i64; 3] { (p / chord).floor().as_i64vec3().to_array() };
+    let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
+    for (i, s) in sphere.iter().enumerate() {
+        if let Some(s) = s {
+            grid.entry(cell(*s)).or_default().push(i);
+        }
+    }
+    let mut count = 0u64;
+    for (i, s) in sphere.iter().enumerate() {
+        let Some(s) = s else { continue };
+        let c = cell(*s);
+        let mut hit = false;
+        'outer: for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let Some(v) = grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
+                        continue;
+                    };
+                    for &j in v {
+                        if j != i
+                            && (sphere[j].expect("in the grid") - *s).length() <= chord
+                            && (positions[j] - positions[i]).length() > far
+                        {
+                            hit = true;
+                            break 'outer;
+                        }
+                    }
+                }
+            }
+        }
+        count += u64::from(hit);
+    }
+    Collisions {
+        angle_deg,
+        far_voxels: far,
+        seeds: count,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::input::starfish::uv_sphere;
+
+    #[test]
+    fn the_radial_map_of_a_sphere_has_no_flips_and_no_distortion_beyond_the_mesh() {
+        let m = uv_sphere(16, 32, |t, p| 10.0 * crate::trace::unit(t, p));
+        let sphere: Vec<Option<DVec3>> = m.vertices.iter().map(|v| Some(v.normalize())).collect();
+        let s = surface(&m.vertices, &m.triangles, &sphere);
+        assert_eq!(s.flipped, 0);
+        assert_eq!(s.measured, s.triangles);
+        assert!(s.log_area_ratio.max.abs() < 1e-9);
+        assert!((s.conformal.max - 1.0).abs() < 1e-6, "{:?}", s.conformal);
+        assert_eq!(collisions(&m.vertices, &sphere, 0.01, 1.0).seeds, 0);
+    }
+
+    #[test]
+    fn a_mirrored_map_flips_every_triangle_and_stretching_shows() {
+        let m = uv_sphere(8, 16, crate::trace::unit);
+        // Mirror x: every triangle's orientation reverses.
+        let mirrored: Vec<Option<DVec3>> = m
+            .vertices
+            .iter()
+            .map(|v| Some(DVec3::new(-v.x, v.y, v.z)))
+            .collect();
+        let s = surface(&m.vertices, &m.triangles, &mirrored);
+        assert_eq!(s.flipped, s.measured - s.degenerate);
+        // An ellipsoid (z stretched 3x) mapped radially: areas and angles change.
+        let ell: Vec<DVec3> = m
+            .vertices
+            .iter()
+            .map(|v| DVec3::new(v.x, v.y, 3.0 * v.z))
+            .collect();
+        let sphere: Vec<Option<DVec3>> = ell.iter().map(|v| Some(v.normalize())).collect();
+        let s = surface(&ell, &m.triangles, &sphere);
+        assert_eq!(s.flipped, 0);
+        assert!(s.conformal.max > 1.5, "{:?}", s.conformal);
+        assert!(s.log_area_ratio.p95 - s.log_area_ratio.p05 > 0.5);
+    }
+
+    #[test]
+    fn seeds_from_far_apart_landing_together_are_counted() {
+        let pos = vec![
+            DVec3::ZERO,
+            DVec3::new(100.0, 0.0, 0.0),
+            DVec3::new(0.5, 0.0, 0.0),
+            DVec3::new(0.0, 50.0, 0.0),
+        ];
+        let x = DVec3::X;
+        let sphere = vec![
+            Some(x),
+            Some((x + DVec3::new(0.0, 1e-5, 0.0)).normalize()), // far on the shape
+            Some((x + DVec3::new(0.0, 0.0, 1e-5)).normalize()), // near on the shape
+            Some(DVec3::Y),
+        ];
+        let c = collisions(&pos, &sphere, 0.01, 5.0);
+        // 0 and 1 collide (far apart); 1 and 2 too; 2 is near 0 only on the shape.
+        assert_eq!(c.seeds, 3);
+    }
+}

@@ -1,0 +1,52 @@
+//! Streamlines from the boundary down -grad(phi) to the center, and the angles at which
+//! they arrive (the paper's steps 6-8).
+//!
+//! - [`field`]: node gradients of phi, trilinearly interpolated (a continuous field);
+//! - [`integrate`]: Dormand–Prince RK45 by arc length, with error control, stop reasons;
+//! - [`tiles`]: streamlines queued per tile, tiles built into a cache within the budget;
+//! - [`seeds`]: boundary voxels or surface vertices, and deterministic sampling;
+//! - [`metrics`]: flipped triangles, collisions and distortion of the sphere map.
+//!
+//! `trace` writes the seed table `RUN/seeds/` and records `harmap.stages.trace`.
+
+pub mod field;
+pub mod integrate;
+pub mod metrics;
+pub mod seeds;
+pub mod stage;
+pub mod tiles;
+
+pub use integrate::{Rk45, Stop};
+pub use seeds::SeedKind;
+pub use stage::{read_seeds, trace, SeedTable, TraceError, TraceOptions, TraceReport};
+
+/// The polar and azimuthal angles of direction `d` (physical x, y, z): theta =
+/// atan2(sqrt(x^2 + y^2), z) in [0, pi], psi = atan2(y, x) in (-pi, pi].
+#[must_use]
+pub fn angles(d: glam::DVec3) -> (f64, f64) {
+    (d.x.hypot(d.y).atan2(d.z), d.y.atan2(d.x))
+}
+
+/// The unit vector of angles `(theta, psi)`.
+#[must_use]
+pub fn unit(theta: f64, psi: f64) -> glam::DVec3 {
+    glam::DVec3::new(
+        theta.sin() * psi.cos(),
+        theta.sin() * psi.sin(),
+        theta.cos(),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn angles_and_unit_vectors_round_trip() {
+        for (t, p) in [(0.3, -2.5), (1.2, 0.0), (2.9, 3.0), (1.5, -0.1)] {
+            let (t2, p2) = angles(unit(t, p) * 7.5);
+            assert!((t - t2).abs() < 1e-12 && (p - p2).abs() < 1e-12);
+        }
+        assert_eq!(angles(glam::DVec3::Z), (0.0, 0.0));
+    }
+}

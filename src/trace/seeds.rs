@@ -1,0 +1,127 @@
+//! Where streamlines start: every boundary voxel, or the vertices of the input surface;
+//! and the deterministic subset `--sample N` takes.
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::grid::{BlockStore, GridError};
+use crate::input::TriMesh;
+
+/// Which seeds to trace.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum SeedKind {
+    /// Every boundary voxel (label 1), at its center.
+    #[default]
+    Boundary,
+    /// The vertices of the input surface (its triangles give the bijectivity numbers).
+    Surface,
+}
+
+/// Voxel coordinates (x, y, z) of every boundary voxel, in C order of the grid (z
+/// slowest), whatever the chunking.
+pub fn boundary(labels: &dyn BlockStore<u8>, workers: usize) -> Result<Vec<DVec3>, GridError> {
+    let spec = labels.spec();
+    let per_block = crate::parallel::map_bounded(&spec.block_indices(), workers, |&b| {
+        let st = spec.block_start(b);
+        let sh = spec.block_shape(b);
+        let data = labels.read_block(b)?;
+        let mut v = Vec::new();
+        let mut o = 0;
+        for z in 0..sh[0] {
+            for y in 0..sh[1] {
+                for x in 0..sh[2] {
+                    if data[o] == 1 {
+                        v.push([st[0] + z, st[1] + y, st[2] + x]);
+                    }
+                    o += 1;
+                }
+            }
+        }
+        Ok::<_, GridError>(v)
+    })?;
+    let mut all: Vec<[u64; 3]> = per_block.into_iter().flatten().collect();
+    all.sort_unstable();
+    Ok(all
+        .into_iter()
+        .map(|[z, y, x]| DVec3::new(x as f64, y as f64, z as f64))
+        .collect())
+}
+
+/// The indices of a deterministic pseudo-random subset of `n` of `total` seeds, in
+/// increasing order (all of them when `n >= total`).
+#[must_use]
+pub fn sample(total: usize, n: usize) -> Vec<usize> {
+    if n >= total {
+        return (0..total).collect();
+    }
+    let mut keyed: Vec<(u64, usize)> = (0..total).map(|i| (splitmix(i as u64), i)).collect();
+    keyed.select_nth_unstable(n);
+    let mut v: Vec<usize> = keyed[..n].iter().map(|k| k.1).collect();
+    v.sort_unstable();
+    v
+}
+
+fn splitmix(mut x: u64) -> u64 {
+    x = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    x ^ (x >> 31)
+}
+
+/// The surface of a run's input, when it has one: the mesh as read (or the built-in
+/// starfish), with triangles wound so that their normals point outward.
+pub fn input_surface(attrs: &serde_json::Value) -> Result<Option<TriMesh>, String> {
+    let input = attrs.get("input").cloned().unwrap_or_default();
+    if input.get("builtin").and_then(|b| b.as_str()) == Some("starfish") {
+        return Ok(Some(crate::input::starfish::starfish(64, 240)));
+    }
+    let Some(path) = input.get("path").and_then(|p| p.as_str()) else {
+        return Ok(None);
+    };
+    let path = std::path::Path::new(path);
+    if path.is_dir() || input.get("format").and_then(|f| f.as_str()) == Some("label-volume") {
+        return Ok(None);
+    }
+    if !path.exists() {
+        return Err(format!(
+            "{}: the run's input mesh is gone; surface seeds need it (or use --seeds boundary)",
+            path.display()
+        ));
+    }
+    if let Some(want) = input.get("sha256").and_then(|s| s.as_str()) {
+        let got = crate::input::sha256_file(path).map_err(|e| e.to_string())?;
+        if got != want {
+            return Err(format!(
+                "{}: the file changed since it was voxelized (sha256 differs); voxelize it again",
+                path.display()
+            ));
+        }
+    }
+    let mut mesh = crate::input::load_mesh(path).map_err(|e| e.to_string())?;
+    if mesh.signed_volume() < 0.0 {
+        for t in &mut mesh.triangles {
+            t.swap(1, 2);
+        }
+    }
+    Ok(Some(mesh))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn samples_are_deterministic_sorted_and_spread() {
+        let a = sample(10_000, 1000);
+        assert_eq!(a, sample(10_000, 1000));
+        assert_eq!(a.len(), 1000);
+        assert!(a.windows(2).all(|w| w[0] < w[1]));
+        // Spread: each tenth of the range holds about a tenth of the sample.
+        for d in 0..10 {
+            let k = a.iter().filter(|&&i| i / 1000 == d).count();
+            assert!((60..=140).contains(&k), "decile {d}: {k}");
+        }
+        assert_eq!(sample(5, 10), vec![0, 1, 2, 3, 4]);
+    }
+}

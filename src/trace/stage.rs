@@ -1,0 +1,579 @@
+//! `trace`: seeds -> streamlines -> the seed table `RUN/seeds/` and `stages.trace`.
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+use serde_json::{json, Value};
+
+use super::integrate::{Line, Rk45, Stop, StopBall};
+use super::metrics::{self, Collisions, SurfaceMetrics};
+use super::seeds::{self, SeedKind};
+use super::tiles::{footprint, trace_tiled, TileStats, Tiling};
+use crate::grid::{read_table, write_table, BlockStore, GridError, GridSpec, MemBudget};
+use crate::progress::Progress;
+use crate::run::{write_atomic, RunDir};
+
+/// Options of `harmap trace`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct TraceOptions {
+    /// Boundary voxels or surface vertices.
+    pub seeds: SeedKind,
+    /// Trace a deterministic subset of this many seeds.
+    pub sample: Option<u64>,
+    /// Radius of the stop ball around the center, voxels (default: 4 center radii, at
+    /// most half the center's depth, at least the center radius plus one).
+    pub stop_radius: Option<f64>,
+    /// The integrator.
+    pub rk: Rk45,
+    /// Tile edge in voxels (default: the chunk edge of phi). Results do not depend on it.
+    pub tile: Option<u64>,
+    /// Memory budget.
+    #[serde(skip)]
+    pub mem: MemBudget,
+}
+
+impl Default for TraceOptions {
+    fn default() -> Self {
+        Self {
+            seeds: SeedKind::Boundary,
+            sample: None,
+            stop_radius: None,
+            rk: Rk45::default(),
+            tile: None,
+            mem: MemBudget::default(),
+        }
+    }
+}
+
+/// Errors of the trace stage.
+#[derive(Debug, thiserror::Error)]
+pub enum TraceError {
+    /// Options or inputs that cannot work.
+    #[error("{0}")]
+    Options(String),
+}
+
+/// What a trace did.
+#[derive(Clone, Debug, Serialize)]
+pub struct TraceReport {
+    /// Seeds traced.
+    pub seeds: u64,
+    /// Seeds of this kind in the run (before sampling).
+    pub seeds_available: u64,
+    /// Streamlines per stop reason.
+    pub stops: BTreeMap<&'static str, u64>,
+    /// Share of seeds that reached the center.
+    pub reached_fraction: f64,
+    /// Mean accepted steps per streamline.
+    pub mean_steps: f64,
+    /// Mean arc length per streamline (voxels).
+    pub mean_length: f64,
+    /// The stop ball's radius (voxels).
+    pub stop_radius: f64,
+    /// Tile edge (voxels).
+    pub tile: u64,
+    /// Tiles and chunks the cache held.
+    pub cache: [usize; 2],
+    /// Scheduler counters.
+    pub tiles: TileStats,
+    /// Seeds landing within a tiny angle of seeds from elsewhere.
+    pub collisions: Collisions,
+    /// Flips and distortion, for surface seeds.
+    pub surface: Option<SurfaceMetrics>,
+    /// Streamlines per second (tracing only).
+    pub lines_per_second: f64,
+}
+
+/// The seed table as stored in `RUN/seeds/`.
+#[derive(Clone, Debug, Default)]
+pub struct SeedTable {
+    /// World positions (x, y, z) of the seeds.
+    pub position: Vec<DVec3>,
+    /// Polar angle of arrival (radians; NaN where the seed did not reach the center).
+    pub theta: Vec<f64>,
+    /// Azimuth of arrival (radians; NaN where it did not reach).
+    pub psi: Vec<f64>,
+    /// phi at the seed.
+    pub phi: Vec<f64>,
+    /// Stop reason codes ([`Stop`]).
+    pub stop: Vec<u8>,
+    /// Accepted steps.
+    pub steps: Vec<u32>,
+    /// Arc length (world units).
+    pub length: Vec<f64>,
+    /// World position where the streamline ended.
+    pub end: Vec<DVec3>,
+    /// For surface seeds: the vertex of the input surface each seed is (else empty).
+    pub vertex: Vec<u32>,
+}
+
+impl SeedTable {
+    /// The sphere point of seed `i`, if it reached the center.
+    #[must_use]
+    pub fn sphere(&self, i: usize) -> Option<DVec3> {
+        (self.stop[i] == Stop::Reached as u8 && self.theta[i].is_finite())
+            .then(|| super::unit(self.theta[i], self.psi[i]))
+    }
+}
+
+fn flat(v: &[DVec3]) -> Vec<f64> {
+    v.iter().flat_map(DVec3::to_array).collect()
+}
+
+fn unflat(v: &[f64]) -> Vec<DVec3> {
+    v.chunks_exact(3)
+        .map(|c| DVec3::new(c[0], c[1], c[2]))
+        .collect()
+}
+
+/// Write the table as the group `dir_name` (Zarr v3) under the run root.
+fn write_seeds(
+    root: &Path,
+    dir_name: &str,
+    t: &SeedTable,
+    kind: SeedKind,
+) -> Result<(), crate::Error> {
+    let dir = root.join(dir_name);
+    if dir.exists() {
+        fs::remove_dir_all(&dir).map_err(|e| GridError::Io {
+            path: dir.clone(),
+            source: e,
+        })?;
+    }
+    fs::create_dir_all(&dir).map_err(|e| GridError::Io {
+        path: dir.clone(),
+        source: e,
+    })?;
+    let stops: Value = Stop::ALL
+        .iter()
+        .map(|s| ((*s as u8).to_string(), Value::from(s.name())))
+        .collect::<serde_json::Map<_, _>>()
+        .into();
+    let doc = json!({
+        "zarr_format": 3,
+        "node_type": "group",
+        "attributes": {"harmap_seeds": {
+            "kind": kind,
+            "rows": t.position.len(),
+            "columns": {
+                "position": "world x, y, z of the seed",
+                "theta": "polar angle of arrival, radians (NaN: did not reach)",
+                "psi": "azimuth of arrival, radians (NaN: did not reach)",
+                "phi": "phi at the seed",
+                "stop": "stop reason code",
+                "steps": "accepted RK45 steps",
+                "length": "arc length, world units",
+                "end": "world x, y, z where the streamline ended",
+                "vertex": "surface seeds: vertex index in the input mesh",
+            },
+            "stop_codes": stops,
+        }}
+    });
+    write_atomic(
+        &dir.join("zarr.json"),
+        serde_json::to_string_pretty(&doc).expect("json").as_bytes(),
+    )?;
+    let p = |c: &str| format!("/{dir_name}/{c}");
+    write_table(root, &p("position"), 3, &flat(&t.position), f64::NAN)?;
+    write_table(root, &p("theta"), 0, &t.theta, f64::NAN)?;
+    write_table(root, &p("psi"), 0, &t.psi, f64::NAN)?;
+    write_table(root, &p("phi"), 0, &t.phi, f64::NAN)?;
+    write_table(root, &p("stop"), 0, &t.stop, 255u8)?;
+    write_table(root, &p("steps"), 0, &t.steps, 0u32)?;
+    write_table(root, &p("length"), 0, &t.length, f64::NAN)?;
+    write_table(root, &p("end"), 3, &flat(&t.end), f64::NAN)?;
+    if !t.vertex.is_empty() {
+        write_table(root, &p("vertex"), 0, &t.vertex, u32::MAX)?;
+    }
+    Ok(())
+}
+
+/// Read the seed table of a traced run.
+pub fn read_seeds(run: &RunDir) -> Result<SeedTable, crate::Error> {
+    let root = run.root();
+    if !root.join("seeds/zarr.json").exists() {
+        return Err(crate::run::RunError::StageMissing {
+            path: root.to_owned(),
+            stage: "trace".into(),
+        }
+        .into());
+    }
+    let f64s = |c: &str| -> Result<Vec<f64>, GridError> {
+        Ok(read_table::<f64>(root, &format!("/seeds/{c}"))?.1)
+    };
+    let vertex = if root.join("seeds/vertex").exists() {
+        read_table::<u32>(root, "/seeds/vertex")?.1
+    } else {
+        Vec::new()
+    };
+    Ok(SeedTable {
+        position: unflat(&f64s("position")?),
+        theta: f64s("theta")?,
+        psi: f64s("psi")?,
+        phi: f64s("phi")?,
+        stop: read_table::<u8>(root, "/seeds/stop")?.1,
+        steps: read_table::<u32>(root, "/seeds/steps")?.1,
+        length: f64s("length")?,
+        end: unflat(&f64s("end")?),
+        vertex,
+    })
+}
+
+fn options(msg: String) -> crate::Error {
+    TraceError::Options(msg).into()
+}
+
+/// Everything a trace needs from the run, and the tracing itself, without writing:
+/// seeds in voxel coordinates, the outcome of each, and the streamline points when
+/// `record_paths`. Used by `trace` and by the streamline export.
+pub struct Traced {
+    /// Seeds (voxel coordinates x, y, z).
+    pub seeds: Vec<DVec3>,
+    /// Surface vertex per seed (surface seeds only).
+    pub vertex: Vec<u32>,
+    /// The surface, for surface seeds.
+    pub surface: Option<crate::input::TriMesh>,
+    /// How each streamline ended.
+    pub outcomes: Vec<super::tiles::Outcome>,
+    /// phi at each seed.
+    pub phi: Vec<f64>,
+    /// Points per streamline (voxel coordinates), when asked for.
+    pub paths: Option<Vec<Vec<DVec3>>>,
+    /// Seeds of this kind before sampling.
+    pub available: u64,
+    /// The stop ball.
+    pub ball: StopBall,
+    /// Tile edge and cache sizes.
+    pub tiling: Tiling,
+    /// Scheduler counters.
+    pub stats: TileStats,
+    /// Seconds spent tracing.
+    pub seconds: f64,
+}
+
+/// Trace the seeds of `run` (see [`trace`]) and return them without writing anything.
+pub fn trace_seeds(
+    run: &RunDir,
+    opts: &TraceOptions,
+    record_paths: bool,
+    progress: &dyn Progress,
+) -> Result<Traced, crate::Error> {
+    let attrs = run.attrs()?;
+    if attrs
+        .pointer("/stages/solve/status")
+        .and_then(Value::as_str)
+        != Some("done")
+    {
+        return Err(crate::run::RunError::StageMissing {
+            path: run.root().to_owned(),
+            stage: "solve".into(),
+        }
+        .into());
+    }
+    if !run.root().join("u/0").exists() {
+        return Err(options(format!(
+            "{}: solved by an older harmap that did not store u = 1 - phi; run `harmap solve` again",
+            run.root().display()
+        )));
+    }
+    let spec = run.grid()?;
+    // u = 1 - phi: the solve stores it because it keeps its precision where phi is
+    // within 1e-16 of 1.
+    let phi = run.open_image::<f64>("u")?;
+    let rk = opts.rk;
+    if !(rk.h_min > 0.0 && rk.h_max >= rk.h_min && rk.atol > 0.0) {
+        return Err(options(format!("integrator settings cannot work: {rk:?}")));
+    }
+    let center_radius = attrs
+        .pointer("/stages/voxelize/options/center_radius")
+        .and_then(Value::as_f64)
+        .unwrap_or(2.0);
+    // Default: well inside, where the sink's voxel shape has faded (4 center radii), but
+    // within half the center's depth for thin shapes, and never inside the sink.
+    let depth = attrs
+        .pointer("/stages/voxelize/result/center_depth")
+        .and_then(Value::as_f64)
+        .unwrap_or(f64::INFINITY);
+    let radius = opts.stop_radius.unwrap_or_else(|| {
+        let least = center_radius + 1.0;
+        (4.0 * center_radius.max(1.0)).min(0.5 * depth).max(least)
+    });
+    if !(radius.is_finite() && radius > 0.0) {
+        return Err(options(format!(
+            "--stop-radius {radius}: give a positive number of voxels"
+        )));
+    }
+    let center: [f64; 3] = attrs
+        .get("center")
+        .and_then(|v| serde_json::from_value(v.clone()).ok())
+        .ok_or_else(|| options(format!("{}: the run has no center", run.root().display())))?;
+    let ball = StopBall {
+        center: spec.world_to_voxel(DVec3::from_array(center)),
+        radius,
+    };
+
+    // Seeds.
+    let (mut seed_pts, mut vertex, surface) = match opts.seeds {
+        SeedKind::Boundary => {
+            let labels = run.open_image::<u8>("labels")?;
+            let workers = rayon::current_num_threads();
+            (seeds::boundary(&labels, workers)?, Vec::new(), None)
+        }
+        SeedKind::Surface => {
+            let mesh = seeds::input_surface(&attrs)
+                .map_err(options)?
+                .ok_or_else(|| {
+                    options(format!(
+                        "{}: the input is not a surface mesh; --seeds surface needs one (use --seeds boundary)",
+                        run.root().display()
+                    ))
+                })?;
+            let pts: Vec<DVec3> = mesh
+                .vertices
+                .iter()
+                .map(|&v| spec.world_to_voxel(v))
+                .collect();
+            let idx: Vec<u32> = (0..pts.len() as u32).collect();
+            (pts, idx, Some(mesh))
+        }
+    };
+    let available = seed_pts.len() as u64;
+    if let Some(n) = opts.sample {
+        let keep = seeds::sample(seed_pts.len(), n as usize);
+        seed_pts = keep.iter().map(|&i| seed_pts[i]).collect();
+        if !vertex.is_empty() {
+            vertex = keep.iter().map(|&i| vertex[i]).collect();
+        }
+    }
+    if seed_pts.is_empty() {
+        return Err(options(format!(
+            "{}: no seeds to trace",
+            run.root().display()
+        )));
+    }
+
+    // Tiles and caches under the budget.
+    let edge = opts
+        .tile
+        .unwrap_or(phi.spec().chunk.iter().copied().max().unwrap_or(64));
+    if edge == 0 {
+        return Err(options(
+            "--tile 0: give a tile edge of at least 1 voxel".into(),
+        ));
+    }
+    let halo = Tiling::halo_for(&rk);
+    let (tile_bytes, chunk_bytes) = footprint(edge, halo, phi.spec());
+    let line_bytes = seed_pts.len() as u64 * 160;
+    let threads = rayon::current_num_threads() as u64;
+    let work = opts.mem.work_bytes().saturating_sub(line_bytes);
+    // At least one tile per thread plus a chunk per tile's neighbourhood.
+    let need = threads * tile_bytes + 8 * chunk_bytes;
+    if work < need {
+        return Err(crate::grid::GridError::Budget {
+            budget: opts.mem.to_string(),
+            what: "tracing (tiles of node gradients and phi chunks)".into(),
+            needed: crate::grid::human(need + crate::grid::BASE_BYTES + line_bytes),
+            suggest: crate::grid::human(
+                (need + crate::grid::BASE_BYTES + line_bytes).next_power_of_two(),
+            ),
+        }
+        .into());
+    }
+    let tiles_total = spec.shape.iter().map(|n| n.div_ceil(edge)).product::<u64>();
+    let cache_chunks = ((work / 3) / chunk_bytes).clamp(8, spec.num_blocks().max(8)) as usize;
+    let cache_tiles = (((work - cache_chunks as u64 * chunk_bytes) / tile_bytes).max(threads))
+        .min(tiles_total) as usize;
+    let tiling = Tiling {
+        grid: spec.shape,
+        edge,
+        halo,
+        cache_tiles,
+        cache_chunks,
+    };
+    progress.info(&format!(
+        "trace: {} seeds, tiles of {edge} (+{halo} halo), cache {cache_tiles} tiles and {cache_chunks} chunks",
+        seed_pts.len()
+    ));
+
+    let lines: Vec<Line> = seed_pts
+        .iter()
+        .enumerate()
+        .map(|(i, &p)| Line {
+            id: i as u32,
+            p,
+            h: 0.5_f64.clamp(rk.h_min, rk.h_max),
+            steps: 0,
+            length: 0.0,
+        })
+        .collect();
+    let t = Instant::now();
+    let phi_at = seed_phi(&phi, &seed_pts)?;
+    let (outcomes, paths, stats) =
+        trace_tiled(&phi, &tiling, &rk, &ball, lines, record_paths, progress)?;
+    Ok(Traced {
+        seeds: seed_pts,
+        vertex,
+        surface,
+        outcomes,
+        phi: phi_at,
+        paths,
+        available,
+        ball,
+        tiling,
+        stats,
+        seconds: t.elapsed().as_secs_f64(),
+    })
+}
+
+/// phi at each seed (voxel coordinates) from the trilinear u, reading each chunk once.
+fn seed_phi(phi: &dyn BlockStore<f64>, pts: &[DVec3]) -> Result<Vec<f64>, GridError> {
+    let spec = phi.spec();
+    let mut by_block: BTreeMap<u64, Vec<usize>> = BTreeMap::new();
+    for (i, p) in pts.iter().enumerate() {
+        let v = [p.z.floor(), p.y.floor(), p.x.floor()];
+        let b: [u64; 3] =
+            std::array::from_fn(|a| (v[a].max(0.0) as u64).min(spec.shape[a] - 1) / spec.chunk[a]);
+        by_block.entry(spec.block_linear(b)).or_default().push(i);
+    }
+    let mut out = vec![f64::NAN; pts.len()];
+    let nb = spec.blocks();
+    for (k, idx) in by_block {
+        let b = [k / (nb[1] * nb[2]), (k / nb[2]) % nb[1], k % nb[2]];
+        let st = spec.block_start(b);
+        let sh = spec.block_shape(b);
+        let region = phi.read_region(st.map(|c| c as i64), sh.map(|c| c as usize + 1), f64::NAN)?;
+        for i in idx {
+            out[i] = 1.0 - trilinear(&region, pts[i]);
+        }
+    }
+    Ok(out)
+}
+
+fn trilinear(b: &crate::grid::Block<f64>, p: DVec3) -> f64 {
+    let f = [p.z.floor(), p.y.floor(), p.x.floor()];
+    let t = [p.z - f[0], p.y - f[1], p.x - f[2]];
+    let mut acc = 0.0;
+    let mut wsum = 0.0;
+    for dz in 0..2 {
+        for dy in 0..2 {
+            for dx in 0..2 {
+                let g = [f[0] as i64 + dz, f[1] as i64 + dy, f[2] as i64 + dx];
+                let inside =
+                    (0..3).all(|a| g[a] >= b.origin[a] && g[a] < b.origin[a] + b.shape[a] as i64);
+                if !inside {
+                    continue;
+                }
+                let v = b.at_global(g);
+                if v.is_nan() {
+                    continue;
+                }
+                let w = [dz, dy, dx]
+                    .iter()
+                    .zip(t)
+                    .map(|(&d, ta)| if d == 1 { ta } else { 1.0 - ta })
+                    .product::<f64>();
+                acc += w * v;
+                wsum += w;
+            }
+        }
+    }
+    if wsum > 0.0 {
+        acc / wsum
+    } else {
+        f64::NAN
+    }
+}
+
+/// Trace the run's seeds to the center and write `RUN/seeds/` (staged, renamed when
+/// whole) and `harmap.stages.trace`.
+pub fn trace(
+    run: &RunDir,
+    opts: &TraceOptions,
+    progress: &dyn Progress,
+) -> Result<TraceReport, crate::Error> {
+    let t0 = Instant::now();
+    let _lock = run.lock()?;
+    let spec: GridSpec = run.grid()?;
+    let tr = trace_seeds(run, opts, false, progress)?;
+    let n = tr.seeds.len();
+    let c = tr.ball.center;
+    let mut table = SeedTable {
+        position: tr.seeds.iter().map(|&p| to_world(&spec, p)).collect(),
+        phi: tr.phi.clone(),
+        vertex: tr.vertex.clone(),
+        ..SeedTable::default()
+    };
+    let mut stops: BTreeMap<&'static str, u64> = Stop::ALL.iter().map(|s| (s.name(), 0)).collect();
+    let (mut steps, mut length) = (0u64, 0.0);
+    for o in &tr.outcomes {
+        *stops.get_mut(o.stop.name()).expect("every reason") += 1;
+        let (theta, psi) = if o.stop == Stop::Reached {
+            super::angles(o.end - c)
+        } else {
+            (f64::NAN, f64::NAN)
+        };
+        table.theta.push(theta);
+        table.psi.push(psi);
+        table.stop.push(o.stop as u8);
+        table.steps.push(o.steps);
+        table.length.push(o.length * spec.spacing);
+        table.end.push(to_world(&spec, o.end));
+        steps += u64::from(o.steps);
+        length += o.length;
+    }
+    let sphere: Vec<Option<DVec3>> = (0..n).map(|i| table.sphere(i)).collect();
+    let collisions = metrics::collisions(&tr.seeds, &sphere, 0.05, 5.0);
+    let surface = tr
+        .surface
+        .as_ref()
+        .filter(|_| opts.sample.is_none())
+        .map(|m| {
+            let pos: Vec<DVec3> = m.vertices.clone();
+            metrics::surface(&pos, &m.triangles, &sphere)
+        });
+    let reached = stops["reached"];
+    let report = TraceReport {
+        seeds: n as u64,
+        seeds_available: tr.available,
+        stops,
+        reached_fraction: reached as f64 / n as f64,
+        mean_steps: steps as f64 / n as f64,
+        mean_length: length / n as f64,
+        stop_radius: tr.ball.radius,
+        tile: tr.tiling.edge,
+        cache: [tr.tiling.cache_tiles, tr.tiling.cache_chunks],
+        tiles: tr.stats,
+        collisions,
+        surface,
+        lines_per_second: n as f64 / tr.seconds.max(1e-9),
+    };
+    write_seeds(run.root(), "seeds.partial", &table, opts.seeds)?;
+    run.commit_image("seeds")?;
+    let seconds = t0.elapsed().as_secs_f64();
+    run.update_attrs(|a| {
+        let stages = a
+            .entry("stages")
+            .or_insert_with(|| json!({}))
+            .as_object_mut()
+            .expect("stages is an object");
+        stages.insert(
+            "trace".into(),
+            json!({"status": "done", "seconds": seconds, "options": opts, "result": report}),
+        );
+    })?;
+    Ok(report)
+}
+
+fn to_world(spec: &GridSpec, p: DVec3) -> DVec3 {
+    DVec3::from_array(spec.origin) + spec.spacing * p
+}
+
+/// Where `harmap trace` writes its table.
+#[must_use]
+pub fn seeds_dir(run: &RunDir) -> PathBuf {
+    run.root().join("seeds")
+}

@@ -1,0 +1,352 @@
+//! Tiled tracing: streamlines wait in the queue of the tile that owns their point; tiles
+//! with waiting streamlines are built (node gradients with a halo) into a cache bounded
+//! by the memory budget and processed in parallel; a streamline that leaves its tile
+//! joins the queue of the next one.
+
+use std::collections::{BTreeMap, HashMap};
+use std::sync::{Arc, Mutex};
+
+use glam::DVec3;
+use rayon::prelude::*;
+
+use super::field::Tile;
+use super::integrate::{advance, Advance, Line, Rk45, Stop, StopBall};
+use crate::grid::{copy_overlap, to_usize, Block, BlockStore, GridError, GridSpec};
+use crate::math::{volume, Idx3};
+use crate::progress::Progress;
+
+/// How a finished streamline ended.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Outcome {
+    /// Why it stopped.
+    pub stop: Stop,
+    /// Where (voxel coordinates x, y, z).
+    pub end: DVec3,
+    /// Accepted steps.
+    pub steps: u32,
+    /// Arc length (voxels).
+    pub length: f64,
+}
+
+/// The tiling of a grid and the memory it may use.
+#[derive(Clone, Copy, Debug)]
+pub struct Tiling {
+    /// Grid shape `[z, y, x]`.
+    pub grid: Idx3,
+    /// Tile edge (nodes).
+    pub edge: u64,
+    /// Halo (nodes) a tile holds around its core.
+    pub halo: i64,
+    /// Tiles the cache may hold.
+    pub cache_tiles: usize,
+    /// Decoded phi chunks the cache may hold.
+    pub cache_chunks: usize,
+}
+
+impl Tiling {
+    /// Halo needed by the integrator `rk`: its reach, plus one node for the cell.
+    #[must_use]
+    pub fn halo_for(rk: &Rk45) -> i64 {
+        rk.reach().ceil() as i64 + 2
+    }
+
+    fn tiles(&self) -> Idx3 {
+        self.grid.map(|n| n.div_ceil(self.edge))
+    }
+
+    /// The tile that owns `p` (points off the grid belong to the nearest edge tile).
+    fn tile_of(&self, p: DVec3) -> u64 {
+        let t = self.tiles();
+        let c = [p.z, p.y, p.x];
+        let idx: [u64; 3] = std::array::from_fn(|a| {
+            let f = c[a].floor();
+            let i = if f < 0.0 { 0 } else { (f as u64) / self.edge };
+            i.min(t[a] - 1)
+        });
+        (idx[0] * t[1] + idx[1]) * t[2] + idx[2]
+    }
+
+    /// Cells owned by tile `k`, `[lo, hi)`; edge tiles own everything beyond the grid.
+    fn core(&self, k: u64) -> ([i64; 3], [i64; 3]) {
+        let t = self.tiles();
+        let idx = [k / (t[1] * t[2]), (k / t[2]) % t[1], k % t[2]];
+        let mut lo = [0i64; 3];
+        let mut hi = [0i64; 3];
+        for a in 0..3 {
+            lo[a] = (idx[a] * self.edge) as i64;
+            hi[a] = ((idx[a] + 1) * self.edge).min(self.grid[a]) as i64;
+            if idx[a] == 0 {
+                lo[a] = i64::MIN / 4;
+            }
+            if idx[a] + 1 == t[a] {
+                hi[a] = i64::MAX / 4;
+            }
+        }
+        (lo, hi)
+    }
+
+    /// The node box a tile holds: its cells within the grid, plus the halo.
+    fn node_box(&self, k: u64) -> ([i64; 3], [usize; 3]) {
+        let t = self.tiles();
+        let idx = [k / (t[1] * t[2]), (k / t[2]) % t[1], k % t[2]];
+        let mut origin = [0i64; 3];
+        let mut shape = [0usize; 3];
+        for a in 0..3 {
+            let lo = (idx[a] * self.edge) as i64;
+            let hi = ((idx[a] + 1) * self.edge).min(self.grid[a]) as i64;
+            origin[a] = lo - self.halo;
+            shape[a] = (hi - lo + 2 * self.halo) as usize;
+        }
+        (origin, shape)
+    }
+}
+
+/// A small least-recently-used cache.
+struct Lru<V> {
+    cap: usize,
+    clock: u64,
+    map: HashMap<u64, (Arc<V>, u64)>,
+}
+
+impl<V> Lru<V> {
+    fn new(cap: usize) -> Self {
+        Self {
+            cap: cap.max(1),
+            clock: 0,
+            map: HashMap::new(),
+        }
+    }
+
+    fn get(&mut self, k: u64) -> Option<Arc<V>> {
+        self.clock += 1;
+        let c = self.clock;
+        self.map.get_mut(&k).map(|e| {
+            e.1 = c;
+            e.0.clone()
+        })
+    }
+
+    fn contains(&self, k: u64) -> bool {
+        self.map.contains_key(&k)
+    }
+
+    fn put(&mut self, k: u64, v: Arc<V>) {
+        self.clock += 1;
+        while self.map.len() >= self.cap && !self.map.contains_key(&k) {
+            let old = self
+                .map
+                .iter()
+                .min_by_key(|(key, (_, t))| (*t, **key))
+                .map(|(key, _)| *key)
+                .expect("a full cache has entries");
+            self.map.remove(&old);
+        }
+        self.map.insert(k, (v, self.clock));
+    }
+}
+
+/// Decoded chunks of u = 1 - phi, shared by the tile builders.
+struct Chunks<'a> {
+    phi: &'a dyn BlockStore<f64>,
+    cache: Mutex<Lru<Vec<f64>>>,
+    decoded: std::sync::atomic::AtomicU64,
+}
+
+impl Chunks<'_> {
+    fn block(&self, b: Idx3) -> Result<Arc<Vec<f64>>, GridError> {
+        let key = self.phi.spec().block_linear(b);
+        if let Some(v) = self.cache.lock().expect("lock").get(key) {
+            return Ok(v);
+        }
+        let v = Arc::new(self.phi.read_block(b)?);
+        self.decoded
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        self.cache.lock().expect("lock").put(key, v.clone());
+        Ok(v)
+    }
+
+    /// phi over `[origin, origin + shape)`, NaN off the grid.
+    fn region(&self, origin: [i64; 3], shape: [usize; 3]) -> Result<Block<f64>, GridError> {
+        let spec: &GridSpec = self.phi.spec();
+        let mut out = Block::filled(origin, shape, f64::NAN);
+        for b in spec.blocks_overlapping(origin, shape) {
+            let data = self.block(b)?;
+            let s = spec.block_start(b).map(|c| c as i64);
+            copy_overlap(&data, s, to_usize(spec.block_shape(b)), &mut out);
+        }
+        Ok(out)
+    }
+}
+
+/// Counters of a tiled trace.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct TileStats {
+    /// Rounds of the scheduler.
+    pub rounds: u64,
+    /// Tiles built (a tile evicted and needed again is built again).
+    pub tiles_built: u64,
+    /// phi chunks decoded.
+    pub chunks_decoded: u64,
+    /// Hand-offs of a streamline from one tile to another.
+    pub handoffs: u64,
+}
+
+/// The outcome of every line (by id), the points of every line when recorded, and the
+/// scheduler's counters.
+pub type Traced = (Vec<Outcome>, Option<Vec<Vec<DVec3>>>, TileStats);
+
+/// A streamline that finished in a tile: its id, outcome and the points it added.
+type Done = (u32, Outcome, Vec<DVec3>);
+/// A streamline that left its tile, with the points it added.
+type Moved = (Line, Vec<DVec3>);
+
+/// Trace every line of `lines` to its end. `phi` is read through a chunk cache; tiles are
+/// built as needed. Results are indexed by `Line::id`. `paths`, when given, collects the
+/// points of every streamline (for exports).
+pub fn trace_tiled(
+    phi: &dyn BlockStore<f64>,
+    tiling: &Tiling,
+    rk: &Rk45,
+    ball: &StopBall,
+    lines: Vec<Line>,
+    record_paths: bool,
+    progress: &dyn Progress,
+) -> Result<Traced, GridError> {
+    let n = lines.len();
+    let chunks = Chunks {
+        phi,
+        cache: Mutex::new(Lru::new(tiling.cache_chunks)),
+        decoded: std::sync::atomic::AtomicU64::new(0),
+    };
+    let mut tiles: Lru<Tile> = Lru::new(tiling.cache_tiles);
+    let mut out: Vec<Option<Outcome>> = vec![None; n];
+    let mut paths: Option<Vec<Vec<DVec3>>> = record_paths.then(|| vec![Vec::new(); n]);
+    if let Some(p) = paths.as_mut() {
+        for l in &lines {
+            p[l.id as usize].push(l.p);
+        }
+    }
+    let mut pending: BTreeMap<u64, Vec<Line>> = BTreeMap::new();
+    for l in lines {
+        pending.entry(tiling.tile_of(l.p)).or_default().push(l);
+    }
+    let mut stats = TileStats::default();
+    progress.start("trace", n as u64);
+    while !pending.is_empty() {
+        stats.rounds += 1;
+        // This round: the waiting tiles already built, then those with the most
+        // streamlines, as many as the cache holds.
+        let mut order: Vec<(bool, usize, u64)> = pending
+            .iter()
+            .map(|(&k, v)| (tiles.contains(k), v.len(), k))
+            .collect();
+        order.sort_by(|a, b| b.0.cmp(&a.0).then(b.1.cmp(&a.1)).then(a.2.cmp(&b.2)));
+        order.truncate(tiling.cache_tiles.max(1));
+        let batch: Vec<u64> = order.iter().map(|o| o.2).collect();
+        // Touch the cached ones first, so building the others evicts tiles of no use
+        // this round (the batch never exceeds the cache).
+        for &k in &batch {
+            let _ = tiles.get(k);
+        }
+        let missing: Vec<u64> = batch
+            .iter()
+            .copied()
+            .filter(|&k| !tiles.contains(k))
+            .collect();
+        let built: Vec<(u64, Arc<Tile>)> = missing
+            .par_iter()
+            .with_max_len(1)
+            .map(|&k| {
+                let (origin, shape) = tiling.node_box(k);
+                let phi = chunks.region(origin.map(|c| c - 1), shape.map(|c| c + 2))?;
+                Ok((k, Arc::new(Tile::from_u(&phi, origin, shape))))
+            })
+            .collect::<Result<_, GridError>>()?;
+        stats.tiles_built += built.len() as u64;
+        for (k, t) in built {
+            tiles.put(k, t);
+        }
+        // Work items: (tile, a slice of its lines), small enough to spread over threads.
+        let mut work: Vec<(u64, Arc<Tile>, Vec<Line>)> = Vec::new();
+        for &k in &batch {
+            let t = tiles.get(k).expect("built this round");
+            let mut v = pending.remove(&k).expect("pending");
+            while v.len() > 512 {
+                let rest = v.split_off(512);
+                work.push((k, t.clone(), v));
+                v = rest;
+            }
+            work.push((k, t, v));
+        }
+        let results: Vec<(Vec<Done>, Vec<Moved>)> = work
+            .into_par_iter()
+            .with_max_len(1)
+            .map(|(k, tile, v)| {
+                let (lo, hi) = tiling.core(k);
+                let mut done = Vec::new();
+                let mut moved = Vec::new();
+                for mut l in v {
+                    let mut path = Vec::new();
+                    let r = advance(
+                        &mut l,
+                        &tile,
+                        lo,
+                        hi,
+                        rk,
+                        ball,
+                        record_paths.then_some(&mut path),
+                    );
+                    match r {
+                        Advance::Done(stop, end) => done.push((
+                            l.id,
+                            Outcome {
+                                stop,
+                                end,
+                                steps: l.steps,
+                                length: l.length,
+                            },
+                            path,
+                        )),
+                        Advance::Moved => moved.push((l, path)),
+                    }
+                }
+                (done, moved)
+            })
+            .collect();
+        let mut finished = 0u64;
+        for (done, moved) in results {
+            finished += done.len() as u64;
+            for (id, o, path) in done {
+                if let Some(p) = paths.as_mut() {
+                    p[id as usize].extend(path);
+                }
+                out[id as usize] = Some(o);
+            }
+            stats.handoffs += moved.len() as u64;
+            for (l, path) in moved {
+                if let Some(p) = paths.as_mut() {
+                    p[l.id as usize].extend(path);
+                }
+                pending.entry(tiling.tile_of(l.p)).or_default().push(l);
+            }
+        }
+        // Lines within a tile are in the order they arrived, which depends on the batch
+        // order; no line's result depends on it.
+        progress.advance(finished);
+    }
+    progress.finish();
+    stats.chunks_decoded = chunks.decoded.load(std::sync::atomic::Ordering::Relaxed);
+    let out = out
+        .into_iter()
+        .map(|o| o.expect("every line finishes"))
+        .collect();
+    Ok((out, paths, stats))
+}
+
+/// Bytes one tile of edge `edge` with `halo` takes, and one decoded chunk of `spec`.
+#[must_use]
+pub fn footprint(edge: u64, halo: i64, spec: &GridSpec) -> (u64, u64) {
+    let s = (edge as i64 + 2 * halo) as usize;
+    let phi_box = ((s + 2) * (s + 2) * (s + 2) * 8) as u64;
+    (Tile::bytes([s; 3]) + phi_box, volume(spec.chunk) * 8)
+}
