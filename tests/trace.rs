@@ -10,7 +10,7 @@ use harmap::pipeline::standard_ball_run;
 use harmap::progress::Silent;
 use harmap::run::RunDir;
 use harmap::solve::{solve, SolveOptions};
-use harmap::trace::{read_seeds, trace, SeedTable, TraceOptions, TraceReport};
+use harmap::trace::{read_seeds, trace, SeedKind, SeedTable, TraceOptions, TraceReport};
 use harmap::voxelize::StandardBall;
 
 /// The standard ball at N, solved to rtol 1e-8.
@@ -181,4 +181,204 @@ fn every_seed_gets_a_stop_reason() {
     o.rk.max_steps = 2;
     let (rep, _) = run_trace(&run, &o);
     assert_eq!(rep.stops["step_limit"], 200, "{:?}", rep.stops);
+}
+
+/// The built-in starfish at resolution 80: thin arms where phi is within 1e-16 of 1, and
+/// rims one or two voxels thick where every voxel is boundary.
+fn solved_starfish(dir: &Path) -> PathBuf {
+    use harmap::pipeline::{voxelize_new_run, Source};
+    use harmap::voxelize::VoxelizeOptions;
+    let out = dir.join("star.harmap");
+    let opts = VoxelizeOptions {
+        resolution: Some(80),
+        center: Some([0.0, 0.0, 0.0]),
+        ..VoxelizeOptions::default()
+    };
+    voxelize_new_run(&Source::Starfish, &opts, &out, true, &Silent).unwrap();
+    let run = RunDir::open(&out).unwrap();
+    let o = SolveOptions {
+        checkpoint_every: 0.0,
+        ..SolveOptions::default()
+    };
+    let rep = solve(&run, &o, &AtomicBool::new(false), &Silent).unwrap();
+    // The solve leaves no negative u (the maximum principle), whatever its rtol left.
+    assert_eq!(rep.polish.negative[1], 0, "{:?}", rep.polish);
+    out
+}
+
+#[test]
+fn streamlines_get_out_of_thin_parts() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = solved_starfish(dir.path());
+    for seeds in [SeedKind::Boundary, SeedKind::Surface] {
+        let o = TraceOptions {
+            seeds,
+            ..TraceOptions::default()
+        };
+        let (rep, t) = run_trace(&run, &o);
+        eprintln!("{seeds:?}: {:?}", rep.stops);
+        assert!(rep.reached_fraction >= 0.999, "{seeds:?}: {:?}", rep.stops);
+        if seeds == SeedKind::Surface {
+            let m = rep.surface.as_ref().expect("surface seeds measure the map");
+            let mesh = harmap::input::starfish::starfish(64, 240);
+            assert_eq!(m.triangles as usize, mesh.triangles.len());
+            assert_eq!(t.position.len(), mesh.vertices.len());
+            assert_eq!(t.vertex.len(), t.position.len());
+            assert!(m.measured as f64 >= 0.99 * m.triangles as f64);
+        }
+    }
+}
+
+fn harmap(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_harmap"))
+        .args(args)
+        .output()
+        .expect("the harmap binary runs")
+}
+
+fn ok(o: &std::process::Output) {
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+#[test]
+fn a_sphere_maps_onto_the_sphere_without_flips_and_exports_whole_files() {
+    use crate::common::{sphere, write_obj};
+    let d = tempfile::tempdir().unwrap();
+    let mesh_path = d.path().join("ball.obj");
+    let mesh = sphere(DVec3::ZERO, 1.0, 16, 32);
+    write_obj(&mesh_path, &mesh);
+    let run = d.path().join("ball.harmap");
+    let r = run.to_str().unwrap();
+    // Tracing before solving is refused, naming the stage to run.
+    ok(&harmap(&[
+        "-q",
+        "voxelize",
+        mesh_path.to_str().unwrap(),
+        "-o",
+        r,
+        "--resolution",
+        "40",
+    ]));
+    let o = harmap(&["trace", r]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("harmap solve"));
+    ok(&harmap(&["-q", "solve", r]));
+    ok(&harmap(&["-q", "trace", r, "--seeds", "surface"]));
+    let attrs = RunDir::open(&run).unwrap().attrs().unwrap();
+    let m = &attrs["stages"]["trace"]["result"]["surface"];
+    assert_eq!(m["flipped"], 0, "{m}");
+    assert_eq!(m["measured"].as_u64().unwrap(), mesh.triangles.len() as u64);
+
+    // OBJ sphere: the mesh's connectivity, every vertex on the unit sphere.
+    let obj = d.path().join("sphere.obj");
+    ok(&harmap(&[
+        "-q",
+        "export",
+        r,
+        "--format",
+        "obj-sphere",
+        "-o",
+        obj.to_str().unwrap(),
+    ]));
+    let text = std::fs::read_to_string(&obj).unwrap();
+    let vs: Vec<DVec3> = text
+        .lines()
+        .filter_map(|l| l.strip_prefix("v "))
+        .map(|l| {
+            let c: Vec<f64> = l.split_whitespace().map(|x| x.parse().unwrap()).collect();
+            DVec3::new(c[0], c[1], c[2])
+        })
+        .collect();
+    assert_eq!(vs.len(), mesh.vertices.len());
+    assert!(vs.iter().all(|v| (v.length() - 1.0).abs() < 1e-9));
+    assert_eq!(
+        text.lines().filter(|l| l.starts_with("f ")).count(),
+        mesh.triangles.len()
+    );
+    assert_eq!(
+        text.lines().filter(|l| l.starts_with("vt ")).count(),
+        vs.len()
+    );
+    // A radial map: each vertex (in the order harmap reads them) lands near its own
+    // direction.
+    let read = harmap::input::load_mesh(&mesh_path).unwrap();
+    let mut err: Vec<f64> = read
+        .vertices
+        .iter()
+        .zip(&vs)
+        .map(|(p, s)| (*p - center(&run)).angle_between(*s).to_degrees())
+        .collect();
+    err.sort_by(f64::total_cmp);
+    // Resolution 40 (radius 20 voxels): the voxel staircase bends the first steps.
+    let (med, max) = (err[err.len() / 2], err[err.len() - 1]);
+    assert!(med < 1.5 && max < 8.0, "median {med}, max {max} degrees");
+
+    // CSV: a header and one row per seed.
+    let csv = d.path().join("seeds.csv");
+    ok(&harmap(&[
+        "-q",
+        "export",
+        r,
+        "--format",
+        "csv",
+        "-o",
+        csv.to_str().unwrap(),
+    ]));
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(
+        lines.next().unwrap(),
+        "x,y,z,theta,psi,phi,stop,stop_name,steps,length,vertex"
+    );
+    assert_eq!(lines.clone().count(), mesh.vertices.len());
+    assert!(lines.all(|l| l.split(',').count() == 11 && l.contains(",reached,")));
+
+    // VTK streamlines: a legacy polydata header, 25 lines, point count consistent.
+    let vtk = d.path().join("lines.vtk");
+    ok(&harmap(&[
+        "-q",
+        "export",
+        r,
+        "--format",
+        "vtk-streamlines",
+        "--sample",
+        "25",
+        "-o",
+        vtk.to_str().unwrap(),
+    ]));
+    let bytes = std::fs::read(&vtk).unwrap();
+    let head = String::from_utf8_lossy(&bytes[..200]);
+    assert!(head.starts_with("# vtk DataFile Version 3.0\n"), "{head}");
+    assert!(head.contains("BINARY\nDATASET POLYDATA\nPOINTS "));
+    let text = String::from_utf8_lossy(&bytes);
+    assert!(text.contains("\nLINES 25 "));
+    assert!(text.contains("CELL_DATA 25\n"));
+
+    // Pictures: PNG of the right size, SVG, and a clear refusal of other formats.
+    let png = d.path().join("atlas.png");
+    ok(&harmap(&["-q", "atlas", r, "-o", png.to_str().unwrap()]));
+    let b = std::fs::read(&png).unwrap();
+    assert_eq!(&b[1..4], b"PNG");
+    assert_eq!(u32::from_be_bytes(b[16..20].try_into().unwrap()), 1200);
+    assert_eq!(u32::from_be_bytes(b[20..24].try_into().unwrap()), 680);
+    let svg = d.path().join("sphere.svg");
+    ok(&harmap(&[
+        "-q",
+        "atlas",
+        r,
+        "--sphere",
+        "-o",
+        svg.to_str().unwrap(),
+    ]));
+    assert!(std::fs::read_to_string(&svg).unwrap().contains("<svg"));
+    let o = harmap(&["atlas", r, "-o", d.path().join("a.jpg").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains(".png or .svg"));
+    // No temporary files left next to the outputs.
+    let left: Vec<_> = std::fs::read_dir(d.path())
+        .unwrap()
+        .filter_map(Result::ok)
+        .filter(|e| e.file_name().to_string_lossy().contains("partial"))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
 }

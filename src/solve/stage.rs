@@ -47,6 +47,8 @@ pub struct SolveOptions {
     pub omega: Option<f64>,
     /// Multigrid cycle.
     pub cycle: CycleOptions,
+    /// Relaxing the tiny values after the solve.
+    pub polish: super::polish::PolishOptions,
     /// Memory budget.
     #[serde(skip)]
     pub mem: MemBudget,
@@ -68,6 +70,7 @@ impl Default for SolveOptions {
             max_iter: 1000,
             omega: None,
             cycle: CycleOptions::default(),
+            polish: super::polish::PolishOptions::default(),
             mem: MemBudget::default(),
             checkpoint_every: 300.0,
             resume: false,
@@ -140,6 +143,8 @@ pub struct SolveReport {
     pub workers: usize,
     /// Levels held in memory (the rest in scratch files).
     pub in_memory: Vec<bool>,
+    /// The relaxation of tiny values after the solve.
+    pub polish: super::polish::PolishReport,
 }
 
 /// Version of the checkpoint files (2: the state is u = 1 - phi).
@@ -549,6 +554,23 @@ pub fn solve(
         .into());
     }
 
+    // Relative accuracy where u is tiny (thin parts of the shape).
+    progress.start("solve: polishing tiny values", 0);
+    let polish = super::polish::polish(
+        &*h.levels[0].u[hist.cur],
+        &*h.levels[0].mask,
+        &opts.polish,
+        opts.mem.work_bytes() / 2,
+        workers,
+    )?;
+    progress.finish();
+    if polish.voxels > 0 {
+        progress.info(&format!(
+            "solve: polished {} tiny values in {} sweeps (last relative change {:.1e}); u < 0 at {} unknowns before, {} after",
+            polish.voxels, polish.sweeps, polish.last_change, polish.negative[0], polish.negative[1]
+        ));
+    }
+
     // phi = 1 - u for users, and u itself (the precise one, for the stages after);
     // NaN outside the problem; staged then renamed into place.
     let out_phi = run.create_image_staged::<f64>("phi", &spec, f64::NAN, Compression::Zstd(1))?;
@@ -585,6 +607,7 @@ pub fn solve(
         checkpoints: ck.written,
         workers,
         in_memory,
+        polish,
     };
     let seconds = t0.elapsed().as_secs_f64();
     run.update_attrs(|a| {

@@ -48,7 +48,7 @@ impl Tile {
     pub fn from_u(phi: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Self {
         debug_assert!((0..3).all(|a| phi.origin[a] == origin[a] - 1));
         debug_assert!((0..3).all(|a| phi.shape[a] == shape[a] + 2));
-        let [sz, sy, sx] = phi.shape;
+        let [_, sy, sx] = phi.shape;
         let strides = [sy * sx, sx, 1];
         let mut nodes = Vec::with_capacity(shape[0] * shape[1] * shape[2]);
         for z in 0..shape[0] {
@@ -72,7 +72,24 @@ impl Tile {
                             (true, true) => 0.0,
                         };
                     }
-                    let n = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+                    let mut n = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+                    // A node on a ridge of u (a one-voxel sheet between two exterior
+                    // layers) has central differences that cancel: go up the steepest
+                    // one-sided difference instead.
+                    let mut steepest = (0.0f64, [0.0f64; 3]);
+                    for (a, sa) in [(0usize, 1usize), (1, sx), (2, sy * sx)] {
+                        for (sign, q) in [(-1.0, phi.data[o - sa]), (1.0, phi.data[o + sa])] {
+                            if q - p0 > steepest.0 {
+                                let mut e = [0.0; 3];
+                                e[a] = sign;
+                                steepest = (q - p0, e);
+                            }
+                        }
+                    }
+                    if steepest.0 > 0.0 && (n.is_nan() || n <= 1e-3 * steepest.0) {
+                        g = steepest.1;
+                        n = 1.0;
+                    }
                     let d = if n > 0.0 && n.is_finite() {
                         g.map(|c| (c / n) as f32)
                     } else {
@@ -82,7 +99,6 @@ impl Tile {
                 }
             }
         }
-        let _ = sz;
         Self {
             origin,
             shape,
@@ -158,10 +174,92 @@ impl Tile {
     pub fn direction(&self, p: DVec3) -> Result<DVec3, NoDirection> {
         let (g, _) = self.sample(p)?;
         let n = g.length();
-        if n.is_nan() || n <= 1e-6 {
-            return Err(NoDirection::Flat);
+        if n > 1e-6 {
+            return Ok(g / n);
         }
-        Ok(g / n)
+        // The node directions around p disagree (streamlines converging onto the
+        // midplane of a thin part from both sides, where the flow turns along it): the
+        // gradient of the trilinear interpolant of u itself (the paper's eq. 6) still
+        // points along the part.
+        let t = self.trilinear_gradient(p)?;
+        let m = t.length();
+        if m > 0.0 && m.is_finite() {
+            Ok(t / m)
+        } else {
+            Err(NoDirection::Flat)
+        }
+    }
+
+    /// The nearest node within `r` nodes of the cell of `p` (a cube) whose u exceeds u at
+    /// every corner of that cell (ties: the first in C order), if any. The cube must lie
+    /// in the tile (`r + 1` within its halo), so the answer is the same in every tile.
+    #[must_use]
+    pub fn escape(&self, p: DVec3, r: i64) -> Option<DVec3> {
+        let c = [floor(p.z), floor(p.y), floor(p.x)];
+        let (sy, sx) = (self.shape[1], self.shape[2]);
+        let at = |g: [i64; 3]| -> Option<f32> {
+            let l: [i64; 3] = std::array::from_fn(|a| g[a] - self.origin[a]);
+            if (0..3).any(|a| l[a] < 0 || l[a] >= self.shape[a] as i64) {
+                return None;
+            }
+            let v = self.nodes[(l[0] as usize * sy + l[1] as usize) * sx + l[2] as usize][3];
+            (!v.is_nan()).then_some(v)
+        };
+        let mut top = f32::NEG_INFINITY;
+        for dz in 0..2 {
+            for dy in 0..2 {
+                for dx in 0..2 {
+                    top = top.max(at([c[0] + dz, c[1] + dy, c[2] + dx])?);
+                }
+            }
+        }
+        let mut best: Option<(f64, DVec3)> = None;
+        for z in c[0] - r..=c[0] + 1 + r {
+            for y in c[1] - r..=c[1] + 1 + r {
+                for x in c[2] - r..=c[2] + 1 + r {
+                    let Some(v) = at([z, y, x]) else { continue };
+                    if v <= top {
+                        continue;
+                    }
+                    let q = DVec3::new(x as f64, y as f64, z as f64);
+                    let d = (q - p).length_squared();
+                    if best.is_none_or(|b| d < b.0) {
+                        best = Some((d, q));
+                    }
+                }
+            }
+        }
+        best.map(|b| b.1)
+    }
+
+    /// The gradient of the trilinear interpolant of u at `p`.
+    fn trilinear_gradient(&self, p: DVec3) -> Result<DVec3, NoDirection> {
+        let [lz, ly, lx] = self.cell(p).ok_or(NoDirection::Outside)?;
+        let tx = p.x - (lx as i64 + self.origin[2]) as f64;
+        let ty = p.y - (ly as i64 + self.origin[1]) as f64;
+        let tz = p.z - (lz as i64 + self.origin[0]) as f64;
+        let (sy, sx) = (self.shape[1], self.shape[2]);
+        let base = (lz * sy + ly) * sx + lx;
+        let c = |dz: usize, dy: usize, dx: usize| {
+            f64::from(self.nodes[base + dz * sy * sx + dy * sx + dx][3])
+        };
+        let lerp = |a: f64, b: f64, t: f64| a + (b - a) * t;
+        let gx = lerp(
+            lerp(c(0, 0, 1) - c(0, 0, 0), c(0, 1, 1) - c(0, 1, 0), ty),
+            lerp(c(1, 0, 1) - c(1, 0, 0), c(1, 1, 1) - c(1, 1, 0), ty),
+            tz,
+        );
+        let gy = lerp(
+            lerp(c(0, 1, 0) - c(0, 0, 0), c(0, 1, 1) - c(0, 0, 1), tx),
+            lerp(c(1, 1, 0) - c(1, 0, 0), c(1, 1, 1) - c(1, 0, 1), tx),
+            tz,
+        );
+        let gz = lerp(
+            lerp(c(1, 0, 0) - c(0, 0, 0), c(1, 0, 1) - c(0, 0, 1), tx),
+            lerp(c(1, 1, 0) - c(0, 1, 0), c(1, 1, 1) - c(0, 1, 1), tx),
+            ty,
+        );
+        Ok(DVec3::new(gx, gy, gz))
     }
 }
 
@@ -231,5 +329,25 @@ mod tests {
             t.direction(DVec3::new(0.5, 0.5, 0.5)),
             Err(NoDirection::Flat)
         );
+    }
+
+    /// A flat sheet (u = 0) with one node of positive u two voxels away: the escape goes
+    /// to it; with nothing higher around, there is none.
+    #[test]
+    fn escapes_go_to_the_nearest_higher_node() {
+        let n = 10usize;
+        let mut u = Block::filled([-1, -1, -1], [n + 2; 3], 0.0f64);
+        let o = u.offset(5 + 1, 4 + 1, 7 + 1); // node (x 7, y 4, z 5)
+        u.data[o] = 1e-20;
+        let t = Tile::from_u(&u, [0, 0, 0], [n; 3]);
+        let q = t.escape(DVec3::new(5.2, 4.5, 5.0), 3).unwrap();
+        assert_eq!(q, DVec3::new(7.0, 4.0, 5.0));
+        assert!(t.escape(DVec3::new(5.2, 4.5, 5.0), 0).is_none());
+        let flat = Tile::from_u(
+            &Block::filled([-1, -1, -1], [n + 2; 3], 0.0),
+            [0; 3],
+            [n; 3],
+        );
+        assert!(flat.escape(DVec3::new(5.2, 4.5, 5.0), 3).is_none());
     }
 }

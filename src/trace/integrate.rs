@@ -99,7 +99,16 @@ pub struct Line {
     pub steps: u32,
     /// Arc length so far (voxels).
     pub length: f64,
+    /// Escapes from flat sheets so far (see [`advance`]).
+    pub escapes: u16,
 }
+
+/// Escapes allowed per streamline.
+pub const MAX_ESCAPES: u16 = 32;
+/// How far (voxels) an escape looks for lower phi; with the cell, within a tile's halo.
+pub const ESCAPE_RADIUS: i64 = 3;
+/// Consecutive steps shorter than 1e-3 voxel that count as stalling.
+const STUCK_STEPS: u32 = 64;
 
 /// Where a streamline's advance in one tile ended.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -211,10 +220,48 @@ pub fn advance(
     }
     let reach = rk.reach();
     let field = |q: DVec3| -> Result<DVec3, NoDirection> { tile.direction(q) };
+    // Where the solid is one or two voxels thick, every voxel is boundary: phi is exactly
+    // 1 there and has no gradient, and streamlines stall on the sheet's midplane. Such a
+    // streamline moves straight to the nearest node within ESCAPE_RADIUS where phi is
+    // lower than anywhere around it, and goes on from there.
+    macro_rules! escape_or_stop {
+        ($e:expr) => {{
+            let e: NoDirection = $e;
+            let target = (e == NoDirection::Flat && line.escapes < MAX_ESCAPES)
+                .then(|| tile.escape(line.p, ESCAPE_RADIUS))
+                .flatten();
+            let Some(q) = target else {
+                return Advance::Done(Stop::from(e), line.p);
+            };
+            let from = line.p;
+            line.escapes += 1;
+            line.steps += 1;
+            line.length += (q - from).length();
+            line.p = q;
+            line.h = 0.5_f64.clamp(rk.h_min, rk.h_max);
+            if let Some(en) = ball.entry(from, q) {
+                if let Some(path) = path.as_deref_mut() {
+                    path.push(en);
+                }
+                return Advance::Done(Stop::Reached, en);
+            }
+            if let Some(path) = path.as_deref_mut() {
+                path.push(q);
+            }
+            if !owns(lo, hi, q) {
+                return Advance::Moved;
+            }
+            match field(line.p) {
+                Ok(k) => k,
+                Err(e) => return Advance::Done(Stop::from(e), line.p),
+            }
+        }};
+    }
     let mut k1 = match field(line.p) {
         Ok(k) => k,
-        Err(e) => return Advance::Done(Stop::from(e), line.p),
+        Err(e) => escape_or_stop!(e),
     };
+    let mut tiny = 0u32;
     loop {
         if line.steps >= rk.max_steps {
             return Advance::Done(Stop::StepLimit, line.p);
@@ -245,7 +292,7 @@ pub fn advance(
             // A stage left the field (or met a flat spot): try a shorter step.
             line.h = 0.5 * h;
             if line.h < rk.h_min {
-                return Advance::Done(Stop::from(e), line.p);
+                k1 = escape_or_stop!(e);
             }
             continue;
         }
@@ -275,6 +322,13 @@ pub fn advance(
         line.p = q;
         line.h = (h * factor).clamp(rk.h_min, rk.h_max);
         k1 = k[6];
+        // Zigzagging across a one-voxel sheet with tiny steps is stalling too.
+        tiny = if h < 1e-3 { tiny + 1 } else { 0 };
+        if tiny >= STUCK_STEPS {
+            tiny = 0;
+            k1 = escape_or_stop!(NoDirection::Flat);
+            continue;
+        }
         if let Some(e) = ball.entry(from, q) {
             if let Some(path) = path.as_deref_mut() {
                 path.push(e);
@@ -331,6 +385,7 @@ mod tests {
                 h: 0.5,
                 steps: 0,
                 length: 0.0,
+                escapes: 0,
             };
             let mut path = Vec::new();
             let r = advance(
@@ -370,6 +425,7 @@ mod tests {
             h: 0.5,
             steps: 0,
             length: 0.0,
+            escapes: 0,
         };
         // Core = the whole tile: the line must stop when its stages leave the nodes.
         let r = advance(
@@ -390,6 +446,7 @@ mod tests {
             h: 0.5,
             steps: 0,
             length: 0.0,
+            escapes: 0,
         };
         let rk = Rk45 {
             max_steps: 3,

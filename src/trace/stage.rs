@@ -408,6 +408,7 @@ pub fn trace_seeds(
             h: 0.5_f64.clamp(rk.h_min, rk.h_max),
             steps: 0,
             length: 0.0,
+            escapes: 0,
         })
         .collect();
     let t = Instant::now();
