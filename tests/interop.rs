@@ -1,5 +1,6 @@
-//! Interoperability: a run directory written by `harmap voxelize` opens in zarr-python 3,
-//! ome-zarr's Reader and ome-zarr-models (`tests/interop/check_run.py`).
+//! Interoperability: a run directory written by `harmap voxelize`, `solve` and `trace`
+//! opens in zarr-python 3, ome-zarr's Reader and ome-zarr-models
+//! (`tests/interop/check_run.py`): labels, phi, u and the seed table.
 //!
 //! Needs a Python with `zarr>=3,<4 numpy ome-zarr ome-zarr-models`, named by the
 //! environment variable `HARMAP_PYTHON` (`.ci/run` sets it up). Without it the test is
@@ -82,5 +83,18 @@ fn run_directory_opens_in_zarr_python_and_ome_zarr() {
         "harmap voxelize failed:\n{}",
         String::from_utf8_lossy(&o.stderr)
     );
+    for args in [vec!["solve"], vec!["trace", "--sample", "500"]] {
+        let o = Command::new(env!("CARGO_BIN_EXE_harmap"))
+            .args(&args)
+            .arg(&run)
+            .args(["--progress", "never"])
+            .output()
+            .expect("the harmap binary runs");
+        assert!(
+            o.status.success(),
+            "harmap {args:?} failed:\n{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
     check_with_python(&python, &run);
 }

@@ -193,6 +193,47 @@ def check_ome_zarr_models(run: Path, h: dict) -> str:
     return "ome-zarr-models v05.Image ok"
 
 
+def check_solve_and_trace(run: Path, h: dict) -> str:
+    """If solved: phi and u agree with the labels and each other. If traced: the seed
+    table's columns have one row per seed, and theta/psi are the direction of the end
+    point from the center."""
+    import numpy as np
+    import zarr
+
+    root = zarr.open_group(str(run), mode="r")
+    out = []
+    if (run / "phi" / "0").exists():
+        lab = root["labels/0"][:]
+        phi = root["phi/0"][:]
+        u = root["u/0"][:]
+        require(phi.dtype == np.float64 and u.dtype == np.float64, f"phi/u dtypes {phi.dtype}, {u.dtype}, expected float64")
+        require(tuple(root["phi/0"].metadata.dimension_names) == ("z", "y", "x"), "phi/0 dimension names are not z, y, x")
+        require(np.array_equal(np.isnan(phi), lab == 0), "phi is NaN exactly where the label is exterior (0): not so")
+        require(bool(np.all(phi[lab == 1] == 1.0)), "phi is not 1 on every boundary voxel")
+        require(bool(np.all(phi[lab == 3] == 0.0)), "phi is not 0 on every center voxel")
+        fin = ~np.isnan(phi)
+        require(bool(np.allclose(phi[fin], 1.0 - u[fin], rtol=0, atol=1e-15)), "phi != 1 - u")
+        inner = phi[lab == 2]
+        require(inner.size == 0 or (inner.min() >= 0.0 and inner.max() <= 1.0), "interior phi outside [0, 1]")
+        out.append(f"phi/u {list(phi.shape)} float64 consistent with the labels")
+    if (run / "seeds" / "zarr.json").exists():
+        cols = {c: root[f"seeds/{c}"][:] for c in ("position", "theta", "psi", "phi", "stop", "steps", "length", "end")}
+        n = cols["theta"].shape[0]
+        require(cols["position"].shape == (n, 3) and cols["end"].shape == (n, 3), "seeds/position or seeds/end is not [n, 3]")
+        require(all(cols[c].shape == (n,) for c in ("psi", "phi", "stop", "steps", "length")), "seed columns differ in length")
+        reached = cols["stop"] == 0
+        require(bool(np.all(np.isfinite(cols["theta"][reached]))), "theta is NaN for a seed that reached the center")
+        require(bool(np.all(np.isnan(cols["theta"][~reached]))), "theta is set for a seed that did not reach")
+        c = np.array(h["center"])
+        d = cols["end"][reached] - c
+        th = np.arctan2(np.hypot(d[:, 0], d[:, 1]), d[:, 2])
+        ps = np.arctan2(d[:, 1], d[:, 0])
+        require(bool(np.allclose(th, cols["theta"][reached], atol=1e-9)), "theta is not the polar angle of end - center")
+        require(bool(np.allclose(np.cos(ps - cols["psi"][reached]), 1.0, atol=1e-9)), "psi is not the azimuth of end - center")
+        out.append(f"seeds: {n} rows, {int(reached.sum())} reached, angles match the end points")
+    return "; ".join(out) if out else "not solved"
+
+
 def main(argv: list[str]) -> int:
     if len(argv) != 2 or argv[1] in ("-h", "--help"):
         print(__doc__.strip(), file=sys.stderr)
@@ -208,7 +249,7 @@ def main(argv: list[str]) -> int:
         return 1
     try:
         h, summary = check_zarr(run)
-        ok = [summary]
+        ok = [summary, check_solve_and_trace(run, h)]
         reader_err = models_err = None
         try:
             ok.append(check_ome_zarr_reader(run, h))
