@@ -27,39 +27,51 @@ VTK (vtkStreamTracer, in a child process that reports its own peak RSS, VmHWM):
   * read s: reading RUN/u/0 (float64 [z,y,x]) with zarr-python into numpy (RUN/phi/0,
     as 1 - phi, when there is no u). Not part of VTK's "seconds".
   * grad s: u's NaNs (outside the solved region) set to min(u) - eps, i.e. phi to
-    max(phi) + eps (eps = the solve's exterior layer spacing, 1e-4), one more "exterior
-    layer" so that the field there still points inwards (repels) and no NaN reaches
-    VTK; u wrapped zero-copy as the point scalars of a vtkImageData (origin, spacing from
+    max(phi) + eps (eps = the solve's exterior layer spacing, 1e-4): one more "exterior
+    layer", so the field there still points inwards (repels) and no NaN reaches VTK;
+    u wrapped zero-copy as the point scalars of a vtkImageData (origin and spacing from
     the grid: voxel (k,j,i) at origin + spacing (i,j,k)); then the gradient of u, which
-    is -grad(phi): vtkImageGradient (dimensionality 3, boundaries handled, central
-    differences / spacing; a vtkThreadedImageAlgorithm given --threads threads), the
-    default as it is several times faster here than the generic vtkGradientFilter
-    (--vtk-gradient generic, vtkSMPTools-threaded). The gradient is put on a fresh
+    is -grad(phi), with vtkImageGradient (dimensionality 3, boundaries handled, central
+    differences / spacing): about 7x faster than the generic vtkGradientFilter at N=256
+    (0.2 s vs 1.4 s; --vtk-gradient generic picks it). The gradient goes on a fresh
     vtkImageData as its only array (active vectors), so the tracer interpolates nothing
-    else onto the lines. With --vtk-field unit the vectors are normalized first (numpy,
-    timed here), harmap's field; the default is the raw -grad(phi).
-  * trace s: vtkStreamTracer.Update(): integrator vtkRungeKutta45, FORWARD,
-    step unit CELL_LENGTH (VTK's cell length is the cell's diagonal, sqrt(3) voxels),
-    initial / minimum / maximum step 0.5 / 0.01 / 2 cell lengths (--vtk-step),
-    MaximumError 1e-6 (VTK's default), at most 20000 steps (harmap's limit; VTK's default
-    2000), maximum propagation 4 grid diagonals, terminal speed 1e-12 (VTK's default,
-    --vtk-terminal-speed; speed = |grad(phi)| per world unit), vorticity off (VTK
-    computes it by default; harmap has nothing like it), default interpolator. Seeds are a
-    vtkPolyData of RUN/seeds/position. vtkSMPTools backend STDThread with --threads
-    threads; vtkStreamTracer (VTK >= 9.1) traces seeds in parallel through vtkSMPTools
-    (cpu/wall of the trace is printed so that this shows). VTK's "seconds" = grad s +
-    trace s.
-  * VTK has no stop ball: a line runs on into the center sink (phi = 0, radius
-    ~ center_radius voxels) until the speed falls below the terminal speed there. So a
-    seed "reached" the center if its line's last point lies within the stop radius plus
-    --slack voxels (1 by default) of `center`; "in ball" counts lines with any point
-    within the stop radius. steps/line = points - 1 (each accepted step adds a point);
-    "to ball" = steps until the first point within the stop radius (all of them for a
-    line that never gets there): the part of the line harmap traces too.
+    else onto the lines. --vtk-field unit normalizes the node vectors first (harmap's
+    field); the default traces the raw -grad(phi). vtkStreamTracer normalizes the
+    interpolated vector inside each step, but interpolating raw gradients (whose size
+    varies like 1/r^2 here) is not interpolating unit vectors: at N=256 VTK takes ~30%
+    fewer steps to the stop ball on the unit field, whose lines match harmap's to 0.015
+    degrees (0.02 on the raw field). With the unit field no line stagnates on a small
+    |grad phi|.
+  * trace s: the vtkStreamTracer Update()s: vtkRungeKutta45, FORWARD, step unit
+    CELL_LENGTH (VTK's cell length is the cell's diagonal, sqrt(3) voxels, so the maximum
+    step is 3.5 voxels where harmap's is 2), initial / minimum / maximum step
+    0.5 / 0.01 / 2 cell lengths (--vtk-step), MaximumError 1e-6, MaximumNumberOfSteps
+    2000 (both VTK's defaults; harmap allows 20000 but its lines take ~100), maximum
+    propagation 4 grid diagonals (VTK's default, 1 world unit, would cut lines on any
+    grid larger than that; --vtk-max-propagation), terminal speed 1e-12 (VTK's default;
+    speed = |grad phi| per world unit), vorticity off (on by default in VTK, which then
+    also computes normals; harmap has nothing like it), default interpolator. Seeds:
+    RUN/seeds/position as the points of a vtkPolyData, --vtk-batch (1000) seeds per
+    Update() so that lines running to the step limit cannot exhaust the memory.
+    vtkSMPTools backend STDThread, --threads threads: vtkStreamTracer (VTK >= 9.1)
+    splits the seeds over the SMP threads; the CPU seconds of each busy thread are
+    printed. VTK's "seconds" = grad s + trace s.
+  * VTK has no stop ball. A line runs on into the center sink (phi = 0 within
+    ~center_radius voxels) until it stagnates (speed below the terminal speed) or, when
+    no cell there has an all-zero gradient, circles the center until the step limit:
+    that can be most of VTK's time. So a seed "reached" the center if its line's last
+    point lies within the stop radius + --slack voxels (1) of `center`; "in ball" counts
+    lines with any point within the stop radius; steps/line = points - 1 (each accepted
+    step adds a point); "to ball" = steps before the first point within the stop radius
+    (all of them for a line that never gets there): the part harmap traces too.
+  * --vtk-stop-ball adds a second VTK line, "VTK, stop ball": the same, on the field
+    zeroed at the nodes inside the stop ball, so a line stagnates within about a cell of
+    where harmap stops: the like-for-like cost. (It bends the field in the cells that
+    straddle the stop sphere a little, so its arrival angles differ a bit more.)
   * arrival: for seeds both tools bring into the stop ball, the angle at `center`
     between harmap's end point (RUN/seeds/end, on the stop sphere) and the point where
-    VTK's polyline first crosses the stop sphere: the two tracers follow the same field
-    when it is small (median, 99th percentile, max in degrees).
+    VTK's polyline first crosses the stop sphere (median, 99th percentile, max in
+    degrees): small when the two tracers follow the same field.
 
 Ratio = VTK seconds / harmap seconds (and with VTK's read included). On a shared machine
 use --repeat 3: each tool then shows its run of median seconds, all listed.
@@ -264,16 +276,11 @@ def vtk_worker(a) -> int:
         n_below_terminal = int((np.abs(g_np).sum(axis=1) == 0).sum())
     del g_np
 
-    pts = vtk.vtkPoints()
-    pts.SetData(numpy_to_vtk(seeds, deep=True))
-    src = vtk.vtkPolyData()
-    src.SetPoints(pts)
-
     nx, ny, nz = shape[2], shape[1], shape[0]
     diag = spacing * float(np.sqrt((nx - 1) ** 2 + (ny - 1) ** 2 + (nz - 1) ** 2))
+    max_prop = a.vtk_max_propagation if a.vtk_max_propagation is not None else 4.0 * diag
     tr = vtk.vtkStreamTracer()
     tr.SetInputData(field)
-    tr.SetSourceData(src)
     tr.SetInputArrayToProcess(0, 0, 0, vtk.vtkDataObject.FIELD_ASSOCIATION_POINTS, "v")
     tr.SetIntegratorTypeToRungeKutta45()
     tr.SetIntegrationDirection(st.FORWARD)
@@ -284,34 +291,98 @@ def vtk_worker(a) -> int:
     tr.SetMaximumIntegrationStep(hmax)
     tr.SetMaximumError(a.vtk_max_error)
     tr.SetMaximumNumberOfSteps(a.vtk_max_steps)
-    tr.SetMaximumPropagation(4.0 * diag)
+    tr.SetMaximumPropagation(max_prop)
     tr.SetTerminalSpeed(a.vtk_terminal_speed)
     tr.SetComputeVorticity(False)
     tr.SetForceSerialExecution(a.vtk_serial)
-    th0 = thread_cpu()
-    c0, t0 = time.process_time(), time.perf_counter()
-    tr.Update()
-    t_trace = time.perf_counter() - t0
-    c_trace = time.process_time() - c0
-    th1 = thread_cpu()
-    busy = sorted((th1[t] - th0.get(t, 0.0) for t in th1), reverse=True)
-    busy = [round(b, 2) for b in busy if b >= 0.05 * max(c_trace, 1e-9)]
-    peak_rss = peak_rss_self()
 
-    # Per seed: points, steps to the stop ball, last point, reached.
-    out = tr.GetOutput()
+    per_seed = {
+        "points": np.zeros(n, dtype=np.int64), "to_ball": np.zeros(n, dtype=np.int64),
+        "reached": np.zeros(n, dtype=bool), "in_ball": np.zeros(n, dtype=bool),
+        "reason": np.full(n, -1, dtype=np.int64), "cross": np.full((n, 3), np.nan),
+    }
+    t_trace = c_trace = 0.0
+    n_lines = n_points = 0
+    peak_rss = 0
+    busy_by_thread: dict[int, float] = {}
+    # The seeds go in batches of --vtk-batch, so that lines that run to the step limit
+    # (up to 20000 points each) cannot exhaust the memory; only the Update()s are timed.
+    for b0 in range(0, n, a.vtk_batch):
+        b1 = min(n, b0 + a.vtk_batch)
+        pts = vtk.vtkPoints()
+        pts.SetData(numpy_to_vtk(seeds[b0:b1], deep=True))
+        src = vtk.vtkPolyData()
+        src.SetPoints(pts)
+        tr.SetSourceData(src)
+        th0 = thread_cpu()
+        c0, t0 = time.process_time(), time.perf_counter()
+        tr.Update()
+        t_trace += time.perf_counter() - t0
+        c_trace += time.process_time() - c0
+        th1 = thread_cpu()
+        for tid, c in th1.items():
+            busy_by_thread[tid] = busy_by_thread.get(tid, 0.0) + c - th0.get(tid, 0.0)
+        peak_rss = max(peak_rss, peak_rss_self())
+        nl, npoints = analyse_lines(tr.GetOutput(), center, r_stop, slack, b0, per_seed, vtk_to_numpy)
+        n_lines += nl
+        n_points += npoints
+    busy = sorted(busy_by_thread.values(), reverse=True)
+    busy = [round(b, 2) for b in busy if b >= 0.05 * max(c_trace, 1e-9)]
+    np.savez(Path(a.out) / "vtk_seeds.npz", **per_seed)
+    reasons = per_seed["reason"]
+    has_line = reasons >= 0
+
+    names = {st.OUT_OF_DOMAIN: "out_of_domain", st.NOT_INITIALIZED: "not_initialized",
+             st.UNEXPECTED_VALUE: "unexpected_value", st.OUT_OF_LENGTH: "out_of_length",
+             st.OUT_OF_STEPS: "out_of_steps", st.STAGNATION: "stagnation"}
+    r_counts = {names.get(int(r), str(int(r))): int(c)
+                for r, c in zip(*np.unique(reasons[has_line], return_counts=True))}
+    r_counts["no_line"] = int(n - has_line.sum())
+    res = {
+        "versions": {"vtk": vtk.vtkVersion.GetVTKVersion(), "numpy": np.__version__, "zarr": zarr.__version__},
+        "smp_backend": vtk.vtkSMPTools.GetBackend(), "smp_backend_set": backend_ok,
+        "smp_threads": int(vtk.vtkSMPTools.GetEstimatedNumberOfThreads()),
+        "force_serial": bool(a.vtk_serial),
+        "source": source, "nan_voxels": n_nan, "nan_fill_u": fill, "eps": eps,
+        "gradient": "vtkImageGradient" if a.vtk_gradient == "image" else "vtkGradientFilter",
+        "field": a.vtk_field, "speed_range": speed_range, "nodes_at_or_below_terminal_speed": n_below_terminal,
+        "import_s": t_import, "read_s": t_read, "prepare_s": t_prepare, "gradient_filter_s": t_gradient_filter,
+        "grad_s": t_grad, "grad_cpu_s": c_grad, "trace_s": t_trace, "trace_cpu_s": c_trace,
+        "trace_thread_cpu_s": busy, "stop_ball": bool(a.vtk_stop_ball), "stop_ball_nodes": n_ball,
+        "seconds": t_grad + t_trace, "seeds": n, "lines": n_lines, "points": n_points, "batch": a.vtk_batch,
+        "mean_points": n_points / max(n_lines, 1),
+        "mean_steps": float((per_seed["points"] - 1).clip(0).mean()),
+        "mean_steps_to_ball": float(per_seed["to_ball"].mean()),
+        "reached_fraction": float(per_seed["reached"].mean()),
+        "in_ball_fraction": float(per_seed["in_ball"].mean()),
+        "reasons": r_counts, "peak_rss": peak_rss,
+        "params": {"integrator": tr.GetIntegrator().GetClassName(), "step_unit": "CELL_LENGTH",
+                   "initial_step": init, "min_step": hmin, "max_step": hmax,
+                   "max_error": tr.GetMaximumError(), "max_steps": tr.GetMaximumNumberOfSteps(),
+                   "max_propagation": tr.GetMaximumPropagation(), "terminal_speed": tr.GetTerminalSpeed(),
+                   "stop_radius": r_stop, "slack": slack},
+    }
+    (Path(a.out) / "vtk.json").write_text(json.dumps(res, indent=1))
+    return 0
+
+
+def analyse_lines(out, center, r_stop, slack, b0, per_seed, vtk_to_numpy) -> tuple[int, int]:
+    """Fill per_seed for the lines of one vtkStreamTracer output whose seeds are numbered
+    from b0: points, steps to the stop ball, reached, in ball, termination, where the line
+    first crosses the stop sphere. Returns the numbers of lines and points."""
     lines = out.GetLines()
+    if lines is None or lines.GetNumberOfCells() == 0:
+        return 0, 0
     offsets = vtk_to_numpy(lines.GetOffsetsArray()).astype(np.int64)
     conn = vtk_to_numpy(lines.GetConnectivityArray()).astype(np.int64)
-    P = vtk_to_numpy(out.GetPoints().GetData()).astype(np.float64, copy=False)
+    P = vtk_to_numpy(out.GetPoints().GetData())
     nl = offsets.size - 1
-    seed_ids = vtk_to_numpy(out.GetCellData().GetArray("SeedIds")).astype(np.int64)
+    seed_ids = vtk_to_numpy(out.GetCellData().GetArray("SeedIds")).astype(np.int64) + b0
     reasons = vtk_to_numpy(out.GetCellData().GetArray("ReasonForTermination")).astype(np.int64)
     npts = np.diff(offsets)
-    LP = P[conn]  # the lines' points, line after line
+    LP = P[conn].astype(np.float64)  # the lines' points, line after line
     d = np.linalg.norm(LP - center, axis=1)
-    last = offsets[1:] - 1
-    reached_line = d[last] <= r_stop + slack
+    reached_line = d[offsets[1:] - 1] <= r_stop + slack
     inside = np.flatnonzero(d <= r_stop)
     line_of = np.searchsorted(offsets, inside, side="right") - 1
     first_line, first_at = np.unique(line_of, return_index=True)
@@ -334,51 +405,13 @@ def vtk_worker(a) -> int:
         t = np.where(A > 0, (-B - np.sqrt(np.maximum(B * B - 4 * A * C, 0))) / (2 * A), 0.0)
     t = np.clip(np.nan_to_num(t), 0.0, 1.0)
     cross[k] = p + t[:, None] * dv
-
-    per_seed = {
-        "points": np.zeros(n, dtype=np.int64), "to_ball": np.zeros(n, dtype=np.int64),
-        "reached": np.zeros(n, dtype=bool), "in_ball": np.zeros(n, dtype=bool),
-        "reason": np.full(n, -1, dtype=np.int64), "cross": np.full((n, 3), np.nan),
-    }
     per_seed["points"][seed_ids] = npts
     per_seed["to_ball"][seed_ids] = to_ball
     per_seed["reached"][seed_ids] = reached_line
     per_seed["in_ball"][seed_ids] = in_ball
     per_seed["reason"][seed_ids] = reasons
     per_seed["cross"][seed_ids] = cross
-    np.savez(Path(a.out) / "vtk_seeds.npz", **per_seed)
-
-    names = {st.OUT_OF_DOMAIN: "out_of_domain", st.NOT_INITIALIZED: "not_initialized",
-             st.UNEXPECTED_VALUE: "unexpected_value", st.OUT_OF_LENGTH: "out_of_length",
-             st.OUT_OF_STEPS: "out_of_steps", st.STAGNATION: "stagnation"}
-    r_counts = {names.get(int(r), str(int(r))): int(c) for r, c in zip(*np.unique(reasons, return_counts=True))}
-    r_counts["no_line"] = int(n - np.unique(seed_ids).size)
-    res = {
-        "versions": {"vtk": vtk.vtkVersion.GetVTKVersion(), "numpy": np.__version__, "zarr": zarr.__version__},
-        "smp_backend": vtk.vtkSMPTools.GetBackend(), "smp_backend_set": backend_ok,
-        "smp_threads": int(vtk.vtkSMPTools.GetEstimatedNumberOfThreads()),
-        "force_serial": bool(a.vtk_serial),
-        "source": source, "nan_voxels": n_nan, "nan_fill_u": fill, "eps": eps,
-        "gradient": "vtkImageGradient" if a.vtk_gradient == "image" else "vtkGradientFilter",
-        "field": a.vtk_field, "speed_range": speed_range, "nodes_at_or_below_terminal_speed": n_below_terminal,
-        "import_s": t_import, "read_s": t_read, "prepare_s": t_prepare, "gradient_filter_s": t_gradient_filter,
-        "grad_s": t_grad, "grad_cpu_s": c_grad, "trace_s": t_trace, "trace_cpu_s": c_trace,
-        "trace_thread_cpu_s": busy, "stop_ball": bool(a.vtk_stop_ball), "stop_ball_nodes": n_ball,
-        "seconds": t_grad + t_trace, "seeds": n, "lines": int(nl), "points": int(conn.size),
-        "mean_points": float(npts.mean()) if nl else 0.0,
-        "mean_steps": float((per_seed["points"] - 1).clip(0).mean()),
-        "mean_steps_to_ball": float(per_seed["to_ball"].mean()),
-        "reached_fraction": float(per_seed["reached"].mean()),
-        "in_ball_fraction": float(per_seed["in_ball"].mean()),
-        "reasons": r_counts, "peak_rss": peak_rss,
-        "params": {"integrator": tr.GetIntegrator().GetClassName(), "step_unit": "CELL_LENGTH",
-                   "initial_step": init, "min_step": hmin, "max_step": hmax,
-                   "max_error": tr.GetMaximumError(), "max_steps": tr.GetMaximumNumberOfSteps(),
-                   "max_propagation": tr.GetMaximumPropagation(), "terminal_speed": tr.GetTerminalSpeed(),
-                   "stop_radius": r_stop, "slack": slack},
-    }
-    (Path(a.out) / "vtk.json").write_text(json.dumps(res, indent=1))
-    return 0
+    return int(nl), int(conn.size)
 
 
 # ---------------------------------------------------------------------------------------
@@ -431,8 +464,13 @@ def run_vtk(a, env, tmp: Path, stop_radius: float, stop_ball: bool) -> dict:
            "--threads", str(a.threads), "--stop-radius-voxels", repr(stop_radius), "--slack", repr(a.slack),
            "--vtk-gradient", a.vtk_gradient, "--vtk-field", a.vtk_field, "--vtk-step", *map(repr, a.vtk_step),
            "--vtk-max-error", repr(a.vtk_max_error), "--vtk-max-steps", str(a.vtk_max_steps),
-           "--vtk-terminal-speed", repr(a.vtk_terminal_speed)] + (["--vtk-serial"] if a.vtk_serial else []) \
-        + (["--vtk-stop-ball"] if stop_ball else [])
+           "--vtk-batch", str(a.vtk_batch), "--vtk-terminal-speed", repr(a.vtk_terminal_speed)]
+    if a.vtk_max_propagation is not None:
+        cmd += ["--vtk-max-propagation", repr(a.vtk_max_propagation)]
+    if a.vtk_serial:
+        cmd.append("--vtk-serial")
+    if stop_ball:
+        cmd.append("--vtk-stop-ball")
     t0 = time.perf_counter()
     p = subprocess.run(cmd, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t0
@@ -454,7 +492,7 @@ def harmap_results(run: Path, n_expected: int) -> tuple[dict, dict]:
     g = zarr.open_group(str(run), mode="r")
     seeds = {k: np.asarray(g[f"seeds/{k}"][...]) for k in ("position", "stop", "steps", "end")}
     if seeds["position"].shape[0] != n_expected and n_expected:
-        print(f"warning: harmap traced {seeds['position'].shape[0]} seeds, --sample {n_expected}")
+        print(f"harmap traced all {seeds['position'].shape[0]} boundary seeds (fewer than --sample {n_expected})")
     return stage, seeds
 
 
@@ -494,7 +532,12 @@ def main() -> int:
     ap.add_argument("--vtk-step", type=float, nargs=3, default=[0.5, 0.01, 2.0], metavar=("INIT", "MIN", "MAX"),
                     help="initial, minimum, maximum step in cell lengths (default 0.5 0.01 2)")
     ap.add_argument("--vtk-max-error", type=float, default=1e-6, help="RK45 MaximumError (default 1e-6)")
-    ap.add_argument("--vtk-max-steps", type=int, default=20000, help="MaximumNumberOfSteps (default 20000)")
+    ap.add_argument("--vtk-max-steps", type=int, default=2000,
+                    help="MaximumNumberOfSteps (default 2000, VTK's default)")
+    ap.add_argument("--vtk-max-propagation", type=float,
+                    help="MaximumPropagation, world units (default 4 grid diagonals; VTK's default is 1)")
+    ap.add_argument("--vtk-batch", type=int, default=1000,
+                    help="seeds per vtkStreamTracer Update() (default 1000): bounds VTK's memory")
     ap.add_argument("--vtk-terminal-speed", type=float, default=1e-12, help="TerminalSpeed (default 1e-12)")
     ap.add_argument("--vtk-serial", action="store_true", help="vtkStreamTracer ForceSerialExecution")
     ap.add_argument("--vtk-stop-ball", action="store_true",

@@ -574,7 +574,7 @@ pub fn solve(
     // phi = 1 - u for users, and u itself (the precise one, for the stages after);
     // NaN outside the problem; staged then renamed into place.
     let out_phi = run.create_image_staged::<f64>("phi", &spec, f64::NAN, Compression::Zstd(1))?;
-    let out_u = run.create_image_staged::<f64>("u", &spec, f64::NAN, Compression::Zstd(1))?;
+    let out_u = run.create_image_staged::<f64>("u", &spec, f64::NAN, Compression::None)?;
     let cur = &*h.levels[0].u[hist.cur];
     progress.start("solve: writing phi and u", spec.num_blocks());
     crate::parallel::map_bounded(&spec.block_indices(), workers, |&b| {

@@ -210,9 +210,9 @@ impl Tile {
     #[inline]
     pub fn direction(&self, p: DVec3) -> Result<DVec3, NoDirection> {
         let g = self.interpolate(p)?;
-        let n = g.length();
-        if n > 1e-6 {
-            return Ok(g / n);
+        let n2 = g.length_squared();
+        if n2 > 1e-12 {
+            return Ok(g * (1.0 / n2.sqrt()));
         }
         // The node directions around p disagree (streamlines converging onto the
         // midplane of a thin part from both sides, where the flow turns along it): the

@@ -85,6 +85,14 @@ impl Tiling {
         (lo, hi)
     }
 
+    /// Distance from `c` (voxel coordinates x, y, z) to the middle of tile `k`.
+    fn distance(&self, k: u64, c: DVec3) -> f64 {
+        let t = self.tiles();
+        let idx = [k / (t[1] * t[2]), (k / t[2]) % t[1], k % t[2]];
+        let mid = idx.map(|i| (i as f64 + 0.5) * self.edge as f64);
+        (DVec3::new(mid[2], mid[1], mid[0]) - c).length()
+    }
+
     /// The node box a tile holds: its cells within the grid, plus the halo.
     fn node_box(&self, k: u64) -> ([i64; 3], [usize; 3]) {
         let t = self.tiles();
@@ -128,6 +136,19 @@ impl<V> Lru<V> {
 
     fn contains(&self, k: u64) -> bool {
         self.map.contains_key(&k)
+    }
+
+    /// Drop the least recently used entries until `room` more fit.
+    fn make_room(&mut self, room: usize) {
+        while !self.map.is_empty() && self.map.len() + room > self.cap {
+            let old = self
+                .map
+                .iter()
+                .min_by_key(|(key, (_, t))| (*t, **key))
+                .map(|(key, _)| *key)
+                .expect("not empty");
+            self.map.remove(&old);
+        }
     }
 
     fn put(&mut self, k: u64, v: Arc<V>) {
@@ -236,13 +257,17 @@ pub fn trace_tiled(
         stats.rounds += 1;
         // This round: the waiting tiles already built, then those with the most
         // streamlines, as many as the cache holds.
-        let mut order: Vec<(bool, usize, u64)> = pending
-            .iter()
-            .map(|(&k, v)| (tiles.contains(k), v.len(), k))
+        // This round: the waiting tiles farthest from the center, as many as the cache
+        // holds. Streamlines flow inward, so a tile is mostly visited once, after the
+        // tiles outside it have handed it their streamlines; with everything in the
+        // cache, all waiting tiles go at once.
+        let mut order: Vec<(f64, u64)> = pending
+            .keys()
+            .map(|&k| (tiling.distance(k, ball.center), k))
             .collect();
-        order.sort_by(|a, b| b.0.cmp(&a.0).then(b.1.cmp(&a.1)).then(a.2.cmp(&b.2)));
+        order.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
         order.truncate(tiling.cache_tiles.max(1));
-        let batch: Vec<u64> = order.iter().map(|o| o.2).collect();
+        let batch: Vec<u64> = order.iter().map(|o| o.1).collect();
         // Touch the cached ones first, so building the others evicts tiles of no use
         // this round (the batch never exceeds the cache).
         for &k in &batch {
@@ -253,6 +278,12 @@ pub fn trace_tiled(
             .copied()
             .filter(|&k| !tiles.contains(k))
             .collect();
+        // Free the room first, so old and new tiles never exceed the cache together
+        // (the batch's cached tiles are the most recent: they stay).
+        tiles.make_room(missing.len());
+        // Built in index order: neighbouring tiles share the phi chunks they read.
+        let mut missing = missing;
+        missing.sort_unstable();
         let built: Vec<(u64, Arc<Tile>)> = missing
             .par_iter()
             .with_max_len(1)
@@ -271,6 +302,12 @@ pub fn trace_tiled(
         for &k in &batch {
             let t = tiles.get(k).expect("built this round");
             let mut v = pending.remove(&k).expect("pending");
+            // Neighbours one after another: they visit the same nodes, which then stay
+            // in cache. (No line's result depends on the order.)
+            v.sort_by_key(|l| {
+                let c = [l.p.z, l.p.y, l.p.x].map(|x| (x.max(0.0) as u64) >> 2);
+                ((c[0] * 4096 + c[1]) * 4096 + c[2], l.id)
+            });
             while v.len() > 512 {
                 let rest = v.split_off(512);
                 work.push((k, t.clone(), v));
