@@ -153,8 +153,7 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
 
 /// `harmap bench solve`: the standard problem at each --n, from labels to a stored phi.
 fn bench_solve(a: &Args, g: &Global) -> anyhow::Result<()> {
-    use harmap::solve::{solve, SolveOptions};
-    use harmap::voxelize::StandardBall;
+    use harmap::solve::solve;
     println!(
         "harmap bench solve: standard ball (radius 0.45 N, sink radius 2), multigrid, rtol 1e-6, --mem {}, {} threads",
         a.mem,
@@ -169,20 +168,9 @@ fn bench_solve(a: &Args, g: &Global) -> anyhow::Result<()> {
     in_bench_dir(a.dir.as_ref(), |dir| {
         for &n in &a.n {
             let out = dir.join(format!("bench-solve-{n}.harmap"));
-            let p = StandardBall {
-                n,
-                sink_radius: 2.0,
-                chunk: 64,
-                mem: a.mem,
-            };
-            let (run, _) = harmap::pipeline::standard_ball_run(&p, &out, true, &bars)?;
-            let opts = SolveOptions {
-                mem: a.mem,
-                checkpoint_every: 0.0,
-                ..SolveOptions::default()
-            };
+            let run = standard_ball(n, a.mem, &out, &bars)?;
             let t = Instant::now();
-            let r = solve(&run, &opts, &stop, &bars)?;
+            let r = solve(&run, &solve_options(a.mem), &stop, &bars)?;
             let secs = t.elapsed().as_secs_f64();
             println!(
                 "{n:>6} {secs:>9.3} {:>7} {:>8.1} {:>14.3e} {:>10.2e} {:>12}",
@@ -204,9 +192,8 @@ fn bench_solve(a: &Args, g: &Global) -> anyhow::Result<()> {
 /// solved in --dir), then the whole trace of --sample boundary seeds, timed.
 fn bench_trace(a: &Args, g: &Global) -> anyhow::Result<()> {
     use harmap::run::RunDir;
-    use harmap::solve::{solve, SolveOptions};
+    use harmap::solve::solve;
     use harmap::trace::{trace, TraceOptions};
-    use harmap::voxelize::StandardBall;
     println!(
         "harmap bench trace: standard ball (radius 0.45 N, sink radius 2), {} boundary seeds, --mem {}, {} threads",
         a.sample,
@@ -222,29 +209,14 @@ fn bench_trace(a: &Args, g: &Global) -> anyhow::Result<()> {
     in_bench_dir(a.dir.as_ref(), |dir| {
         for &n in &a.n {
             let out = dir.join(format!("bench-solve-{n}.harmap"));
-            let solved = RunDir::open(&out).ok().filter(|r| {
-                r.root().join("u/0").exists()
-                    && r.attrs().ok().and_then(|v| {
-                        v.pointer("/stages/solve/status")
-                            .and_then(|s| s.as_str().map(|s| s == "done"))
-                    }) == Some(true)
-            });
+            let solved = RunDir::open(&out)
+                .ok()
+                .filter(|r| r.root().join("u/0").exists() && r.require_stage("solve").is_ok());
             let run = if let Some(r) = solved {
                 r
             } else {
-                let p = StandardBall {
-                    n,
-                    sink_radius: 2.0,
-                    chunk: 64,
-                    mem: a.mem,
-                };
-                let (run, _) = harmap::pipeline::standard_ball_run(&p, &out, true, &bars)?;
-                let opts = SolveOptions {
-                    mem: a.mem,
-                    checkpoint_every: 0.0,
-                    ..SolveOptions::default()
-                };
-                solve(&run, &opts, &stop, &bars)?;
+                let run = standard_ball(n, a.mem, &out, &bars)?;
+                solve(&run, &solve_options(a.mem), &stop, &bars)?;
                 run
             };
             let opts = TraceOptions {
@@ -269,6 +241,32 @@ fn bench_trace(a: &Args, g: &Global) -> anyhow::Result<()> {
         }
         Ok(())
     })
+}
+
+/// The standard problem at `n` (ball of radius 0.45 n, sink radius 2, chunks 64^3) as a
+/// new run at `out`.
+fn standard_ball(
+    n: u64,
+    mem: MemBudget,
+    out: &std::path::Path,
+    bars: &Bars,
+) -> anyhow::Result<harmap::run::RunDir> {
+    let p = harmap::voxelize::StandardBall {
+        n,
+        sink_radius: 2.0,
+        chunk: 64,
+        mem,
+    };
+    Ok(harmap::pipeline::standard_ball_run(&p, out, true, bars)?.0)
+}
+
+/// The benchmarks' solve: multigrid defaults, no checkpoints.
+fn solve_options(mem: MemBudget) -> harmap::solve::SolveOptions {
+    harmap::solve::SolveOptions {
+        mem,
+        checkpoint_every: 0.0,
+        ..harmap::solve::SolveOptions::default()
+    }
 }
 
 /// Run `f` in the directory for the benchmark's runs: the one given, or a new one in the

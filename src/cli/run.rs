@@ -87,11 +87,7 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     }
     let run = harmap::run::RunDir::open(&out).map_err(harmap::Error::from)?;
     let attrs = run.attrs().map_err(harmap::Error::from)?;
-    if attrs
-        .pointer("/stages/solve/status")
-        .and_then(serde_json::Value::as_str)
-        == Some("done")
-    {
+    if harmap::run::stage_done(&attrs, "solve") {
         g.say("solve: already done (skipped; --force redoes every stage)");
     } else {
         // Continue an interrupted solve from its checkpoint when there is one.
@@ -110,12 +106,7 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         ));
     }
     let attrs = run.attrs().map_err(harmap::Error::from)?;
-    if attrs
-        .pointer("/stages/trace/status")
-        .and_then(serde_json::Value::as_str)
-        == Some("done")
-        && out.join("seeds").exists()
-    {
+    if harmap::run::stage_done(&attrs, "trace") && out.join("seeds").exists() {
         g.say("trace: already done (skipped; --force redoes every stage)");
     } else {
         // Surface seeds when the input is a mesh: the bijectivity numbers need triangles.
@@ -158,11 +149,7 @@ fn voxelize_done(
     let Some(attrs) = RunDir::open(out).ok().and_then(|r| r.attrs().ok()) else {
         return Ok(false);
     };
-    if attrs
-        .pointer("/stages/voxelize/status")
-        .and_then(|s| s.as_str())
-        != Some("done")
-    {
+    if !harmap::run::stage_done(&attrs, "voxelize") {
         return Ok(false);
     }
     let same_input = match input {

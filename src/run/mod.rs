@@ -336,6 +336,35 @@ impl RunDir {
         self.write_group_attrs(&v)
     }
 
+    /// Record stage `name` as done: `harmap.stages.<name>` = status, seconds, options
+    /// and result.
+    pub fn record_stage(
+        &self,
+        name: &str,
+        seconds: f64,
+        options: impl serde::Serialize,
+        result: impl serde::Serialize,
+    ) -> Result<(), RunError> {
+        let v = json!({"status": "done", "seconds": seconds, "options": options, "result": result});
+        self.update_attrs(|a| {
+            let stages = a.entry("stages").or_insert_with(|| json!({}));
+            stages[name] = v;
+        })
+    }
+
+    /// The attributes, when stage `stage` is done; else the error that names it.
+    pub fn require_stage(&self, stage: &str) -> Result<Value, RunError> {
+        let attrs = self.attrs()?;
+        if stage_done(&attrs, stage) {
+            Ok(attrs)
+        } else {
+            Err(RunError::StageMissing {
+                path: self.root.clone(),
+                stage: stage.into(),
+            })
+        }
+    }
+
     /// The grid of the run (from `harmap.grid`), with the chunk shape of `labels/0`.
     pub fn grid(&self) -> Result<GridSpec, RunError> {
         let a = self.attrs()?;
@@ -446,6 +475,17 @@ impl RunDir {
         let spec = self.grid()?;
         Ok(ZarrStore::open(&self.root, &format!("/{name}/0"), spec)?)
     }
+}
+
+/// Whether `harmap.stages.<stage>.status` is `done` in the attributes `attrs`.
+#[must_use]
+pub fn stage_done(attrs: &Value, stage: &str) -> bool {
+    attrs
+        .get("stages")
+        .and_then(|s| s.get(stage))
+        .and_then(|s| s.get("status"))
+        .and_then(Value::as_str)
+        == Some("done")
 }
 
 /// OME-Zarr 0.5 `ome` attributes for a single-level image of the grid: axes z, y, x with

@@ -128,8 +128,10 @@ pub fn polish(
     };
     // Rows: neighbours in the region by index, the rest summed (read with a halo).
     let mut rows: Vec<Row> = Vec::with_capacity(n);
+    // Grid index [z, y, x] of a linear index, and its block.
+    let coords = |g: u64| -> Idx3 { [g / (ny * nx), (g / nx) % ny, g % nx] };
     let blocks_of = |g: u64| -> Idx3 {
-        let v = [g / (ny * nx), (g / nx) % ny, g % nx];
+        let v = coords(g);
         [0, 1, 2].map(|a| v[a] / spec.chunk[a])
     };
     let mut i = 0;
@@ -138,7 +140,7 @@ pub fn polish(
         let halo = u.read_block_halo(b, 1, f64::NAN)?;
         while i < n && blocks_of(region[i].0) == b {
             let g = region[i].0;
-            let v = [g / (ny * nx), (g / nx) % ny, g % nx];
+            let v = coords(g);
             let mut row = Row {
                 nbr: [0; 6],
                 count: 0,
@@ -164,7 +166,7 @@ pub fn polish(
     }
     // Colors by the parity of the grid index, as the solver's sweeps.
     let parity = |g: u64| {
-        let v = [g / (ny * nx), (g / nx) % ny, g % nx];
+        let v = coords(g);
         (v[0] + v[1] + v[2]) % 2
     };
     let colors: [Vec<u32>; 2] = [0, 1].map(|c| {
@@ -220,7 +222,7 @@ pub fn polish(
         let mut data = u.read_block(b)?;
         while i < n && blocks_of(region[i].0) == b {
             let g = region[i].0;
-            let v = [g / (ny * nx), (g / nx) % ny, g % nx];
+            let v = coords(g);
             let o = ((v[0] - st[0]) * sh[1] + (v[1] - st[1])) * sh[2] + (v[2] - st[2]);
             data[o as usize] = vals[i];
             i += 1;

@@ -17,7 +17,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
-use serde_json::{json, Value};
+use serde_json::json;
 use sha2::{Digest, Sha256};
 
 use super::driver::{initialize, Decision, History, Iteration, Method, StopReason};
@@ -409,18 +409,7 @@ pub fn solve(
         return Err(options("--omega must lie in (0, 2)".into()));
     }
     let _lock = run.lock()?;
-    let attrs = run.attrs()?;
-    if attrs
-        .pointer("/stages/voxelize/status")
-        .and_then(Value::as_str)
-        != Some("done")
-    {
-        return Err(crate::run::RunError::StageMissing {
-            path: run.root().to_owned(),
-            stage: "voxelize".into(),
-        }
-        .into());
-    }
+    run.require_stage("voxelize")?;
     let spec = run.grid()?;
     let labels = run.open_image::<u8>("labels")?;
     let dir = run.root().join("solve");
@@ -610,22 +599,7 @@ pub fn solve(
         polish,
     };
     let seconds = t0.elapsed().as_secs_f64();
-    run.update_attrs(|a| {
-        let stages = a
-            .entry("stages")
-            .or_insert_with(|| json!({}))
-            .as_object_mut()
-            .expect("stages is an object");
-        stages.insert(
-            "solve".into(),
-            json!({
-                "status": "done",
-                "seconds": seconds,
-                "options": opts,
-                "result": report,
-            }),
-        );
-    })?;
+    run.record_stage("solve", seconds, opts, &report)?;
     let _ = fs::remove_dir_all(&dir);
     Ok(report)
 }

@@ -2,7 +2,7 @@
 
 use std::collections::BTreeMap;
 use std::fs;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 use glam::DVec3;
@@ -262,18 +262,7 @@ pub fn trace_seeds(
     record_paths: bool,
     progress: &dyn Progress,
 ) -> Result<Traced, crate::Error> {
-    let attrs = run.attrs()?;
-    if attrs
-        .pointer("/stages/solve/status")
-        .and_then(Value::as_str)
-        != Some("done")
-    {
-        return Err(crate::run::RunError::StageMissing {
-            path: run.root().to_owned(),
-            stage: "solve".into(),
-        }
-        .into());
-    }
+    let attrs = run.require_stage("solve")?;
     if !run.root().join("u/0").exists() {
         return Err(options(format!(
             "{}: solved by an older harmap that did not store u = 1 - phi; run `harmap solve` again",
@@ -555,26 +544,10 @@ pub fn trace(
     write_seeds(run.root(), "seeds.partial", &table, opts.seeds)?;
     run.commit_image("seeds")?;
     let seconds = t0.elapsed().as_secs_f64();
-    run.update_attrs(|a| {
-        let stages = a
-            .entry("stages")
-            .or_insert_with(|| json!({}))
-            .as_object_mut()
-            .expect("stages is an object");
-        stages.insert(
-            "trace".into(),
-            json!({"status": "done", "seconds": seconds, "options": opts, "result": report}),
-        );
-    })?;
+    run.record_stage("trace", seconds, opts, &report)?;
     Ok(report)
 }
 
 fn to_world(spec: &GridSpec, p: DVec3) -> DVec3 {
     DVec3::from_array(spec.origin) + spec.spacing * p
-}
-
-/// Where `harmap trace` writes its table.
-#[must_use]
-pub fn seeds_dir(run: &RunDir) -> PathBuf {
-    run.root().join("seeds")
 }

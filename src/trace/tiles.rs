@@ -153,14 +153,8 @@ impl<V> Lru<V> {
 
     fn put(&mut self, k: u64, v: Arc<V>) {
         self.clock += 1;
-        while self.map.len() >= self.cap && !self.map.contains_key(&k) {
-            let old = self
-                .map
-                .iter()
-                .min_by_key(|(key, (_, t))| (*t, **key))
-                .map(|(key, _)| *key)
-                .expect("a full cache has entries");
-            self.map.remove(&old);
+        if !self.map.contains_key(&k) {
+            self.make_room(1);
         }
         self.map.insert(k, (v, self.clock));
     }
