@@ -12,6 +12,7 @@
 pub mod export;
 pub mod grid;
 pub mod input;
+pub mod map;
 pub mod math;
 pub mod pipeline;
 pub mod progress;

@@ -3,6 +3,7 @@
 mod cli;
 mod common;
 mod interop;
+mod map;
 mod meshes;
 mod solve;
 mod trace;

@@ -22,6 +22,10 @@ use super::{Global, UsageError};
 /// reused) and times the whole trace of --sample boundary seeds, reading u included:
 /// streamlines per second, RK45 steps per streamline, the share that reached the center.
 ///
+/// `harmap bench map` solves the same problem (timed, or a solved run kept in --dir is
+/// reused with its recorded solve time) and times the default map: the map's seconds
+/// next to the solve's, voxels per second, rounds over the blocks.
+///
 /// `harmap bench voxelize` voxelizes a mesh (default: the armadillo of the project's
 /// test data when it is found, else the built-in starfish) at each --n and prints one
 /// line per size. Peak memory is the process's high-water mark (VmHWM), so run one size
@@ -34,6 +38,7 @@ use super::{Global, UsageError};
 ///   harmap bench solve --n 512 --mem 256MiB --dir /scratch/b --keep
 ///   harmap bench trace --n 256 --sample 50000
 ///   harmap bench trace --n 512 --mem 256MiB --dir /scratch/b --keep
+///   harmap bench map --n 256
 #[derive(clap::Args, Debug)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
@@ -73,6 +78,9 @@ pub enum Stage {
     /// The whole `harmap trace` (reading u included) of --sample boundary seeds on the
     /// solved standard problem.
     Trace,
+    /// The default (upwind) `harmap map` of the solved standard problem, next to the
+    /// time of its solve.
+    Map,
 }
 
 /// Peak resident set of this process so far, bytes (Linux; 0 elsewhere).
@@ -92,6 +100,7 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     match a.stage {
         Stage::Solve => return bench_solve(a, g),
         Stage::Trace => return bench_trace(a, g),
+        Stage::Map => return bench_map(a, g),
         Stage::Voxelize => {}
     }
     let input = a.input.clone().or_else(|| {
@@ -191,8 +200,6 @@ fn bench_solve(a: &Args, g: &Global) -> anyhow::Result<()> {
 /// `harmap bench trace`: the standard problem at each --n, solved (not timed, or found
 /// solved in --dir), then the whole trace of --sample boundary seeds, timed.
 fn bench_trace(a: &Args, g: &Global) -> anyhow::Result<()> {
-    use harmap::run::RunDir;
-    use harmap::solve::solve;
     use harmap::trace::{trace, TraceOptions};
     println!(
         "harmap bench trace: standard ball (radius 0.45 N, sink radius 2), {} boundary seeds, --mem {}, {} threads",
@@ -205,20 +212,10 @@ fn bench_trace(a: &Args, g: &Global) -> anyhow::Result<()> {
         "N", "seeds", "seconds", "streamlines/s", "steps/line", "reached", "peak RSS"
     );
     let bars = Bars::new(g);
-    let stop = std::sync::atomic::AtomicBool::new(false);
     in_bench_dir(a.dir.as_ref(), |dir| {
         for &n in &a.n {
             let out = dir.join(format!("bench-solve-{n}.harmap"));
-            let solved = RunDir::open(&out)
-                .ok()
-                .filter(|r| r.root().join("u/0").exists() && r.require_stage("solve").is_ok());
-            let run = if let Some(r) = solved {
-                r
-            } else {
-                let run = standard_ball(n, a.mem, &out, &bars)?;
-                solve(&run, &solve_options(a.mem), &stop, &bars)?;
-                run
-            };
+            let (run, _) = solved_ball(n, a.mem, &out, &bars)?;
             let opts = TraceOptions {
                 sample: Some(a.sample),
                 mem: a.mem,
@@ -233,6 +230,73 @@ fn bench_trace(a: &Args, g: &Global) -> anyhow::Result<()> {
                 r.seeds as f64 / secs,
                 r.mean_steps,
                 100.0 * r.reached_fraction,
+                harmap::grid::human(peak_rss())
+            );
+            if !a.keep {
+                std::fs::remove_dir_all(&out)?;
+            }
+        }
+        Ok(())
+    })
+}
+
+/// The solved standard problem at `out`: the run found there when it is solved, else a
+/// new one, solved. With the solve's seconds (as recorded, for a run found solved).
+fn solved_ball(
+    n: u64,
+    mem: MemBudget,
+    out: &std::path::Path,
+    bars: &Bars,
+) -> anyhow::Result<(harmap::run::RunDir, f64)> {
+    use harmap::run::RunDir;
+    let found = RunDir::open(out)
+        .ok()
+        .filter(|r| r.root().join("u/0").exists() && r.require_stage("solve").is_ok());
+    if let Some(r) = found {
+        let secs = r
+            .attrs()?
+            .pointer("/stages/solve/seconds")
+            .and_then(serde_json::Value::as_f64)
+            .unwrap_or(f64::NAN);
+        return Ok((r, secs));
+    }
+    let run = standard_ball(n, mem, out, bars)?;
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    let t = Instant::now();
+    harmap::solve::solve(&run, &solve_options(mem), &stop, bars)?;
+    Ok((run, t.elapsed().as_secs_f64()))
+}
+
+/// `harmap bench map`: the standard problem at each --n, solved (timed, or found solved
+/// in --dir with its recorded time), then the default (upwind) map, timed.
+fn bench_map(a: &Args, g: &Global) -> anyhow::Result<()> {
+    use harmap::map::{map, MapOptions};
+    println!(
+        "harmap bench map: standard ball (radius 0.45 N, sink radius 2), upwind map, --mem {}, {} threads",
+        a.mem,
+        rayon::current_num_threads()
+    );
+    println!(
+        "{:>6} {:>11} {:>9} {:>10} {:>11} {:>7} {:>12}",
+        "N", "solve (s)", "map (s)", "map/solve", "voxels/s", "rounds", "peak RSS"
+    );
+    let bars = Bars::new(g);
+    in_bench_dir(a.dir.as_ref(), |dir| {
+        for &n in &a.n {
+            let out = dir.join(format!("bench-solve-{n}.harmap"));
+            let (run, solve_secs) = solved_ball(n, a.mem, &out, &bars)?;
+            let opts = MapOptions {
+                mem: a.mem,
+                ..MapOptions::default()
+            };
+            let t = Instant::now();
+            let r = map(&run, &opts, &bars)?;
+            let secs = t.elapsed().as_secs_f64();
+            let rounds = r.upwind.map_or(0, |u| u.rounds[0] + u.rounds[1]);
+            println!(
+                "{n:>6} {solve_secs:>11.3} {secs:>9.3} {:>10.2} {:>11.3e} {rounds:>7} {:>12}",
+                secs / solve_secs,
+                r.voxels as f64 / secs,
                 harmap::grid::human(peak_rss())
             );
             if !a.keep {

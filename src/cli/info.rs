@@ -229,5 +229,26 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
             )?;
         }
     }
+    if let Some(v) = attrs.pointer("/stages/map/result") {
+        write!(
+            out,
+            "map:      {} of {} voxels have (theta, psi) ({}",
+            v["mapped"],
+            v["voxels"],
+            v["method"].as_str().unwrap_or("?")
+        )?;
+        if let Some(u) = v.get("upwind").filter(|u| !u.is_null()) {
+            write!(
+                out,
+                ": {} from the stop ball, {} upwind, {} filled from neighbours",
+                u["from_ball"], u["upwind"], u["filled"]
+            )?;
+        }
+        if let Some(st) = v.get("stops").and_then(Value::as_object) {
+            let s: Vec<String> = st.iter().map(|(k, n)| format!("{k} {n}")).collect();
+            write!(out, ": {}", s.join(", "))?;
+        }
+        writeln!(out, "), stop radius {} voxels", v["stop_radius"])?;
+    }
     Ok(())
 }

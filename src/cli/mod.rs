@@ -8,6 +8,7 @@ mod atlas;
 mod bench;
 mod export;
 mod info;
+mod map;
 mod progress;
 mod run;
 mod solve;
@@ -73,6 +74,7 @@ enum Command {
     Voxelize(voxelize::Args),
     Solve(solve::Args),
     Trace(trace::Args),
+    Map(map::Args),
     Atlas(atlas::Args),
     Export(export::Args),
     Info(info::Args),
@@ -176,6 +178,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Voxelize(a) => voxelize::run(&a, &global),
         Command::Solve(a) => solve::run(&a, &global),
         Command::Trace(a) => trace::run(&a, &global),
+        Command::Map(a) => map::run(&a, &global),
         Command::Atlas(a) => atlas::run(&a, &global),
         Command::Export(a) => export::run(&a, &global),
         Command::Info(a) => info::run(&a, &global),

@@ -13,8 +13,9 @@ use super::{Global, UsageError};
 
 /// Run the pipeline on a shape: voxelization (labels and center), the solve (phi,
 /// multigrid; an interrupted solve resumes from its checkpoint), the trace (streamlines
-/// from the surface's vertices, or from the boundary voxels for other inputs) and the
-/// atlas picture (RUN's name with .atlas.png). The full-volume map is not built yet.
+/// from the surface's vertices, or from the boundary voxels for other inputs), the
+/// full-volume map (theta and psi for every voxel, upwind) and the atlas picture (RUN's
+/// name with .atlas.png), then a summary.
 ///
 /// With no INPUT, runs on the built-in five-armed starfish, centered at its middle.
 /// Stages already done in RUN are skipped, so a run that was stopped is finished by
@@ -130,13 +131,44 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
             super::trace::summary(&r, t.elapsed().as_secs_f64())
         ));
     }
+    let attrs = run.attrs().map_err(harmap::Error::from)?;
+    if harmap::run::stage_done(&attrs, "map") && out.join("theta").exists() {
+        g.say("map: already done (skipped; --force redoes every stage)");
+    } else {
+        let stop_radius = attrs
+            .pointer("/stages/trace/options/stop_radius")
+            .and_then(serde_json::Value::as_f64);
+        let opts = harmap::map::MapOptions {
+            stop_radius,
+            mem: a.opts.mem,
+            ..harmap::map::MapOptions::default()
+        };
+        let t = std::time::Instant::now();
+        let r = harmap::map::map(&run, &opts, &Bars::new(g))?;
+        g.say(&format!(
+            "map: {}",
+            super::map::summary(&r, t.elapsed().as_secs_f64())
+        ));
+    }
     let atlas = out.with_extension("atlas.png");
     harmap::report::atlas(&run, &atlas, false, harmap::report::ColorBy::Axis)?;
+    let attrs = run.attrs().map_err(harmap::Error::from)?;
+    let secs = |s: &str| {
+        attrs
+            .pointer(&format!("/stages/{s}/seconds"))
+            .and_then(serde_json::Value::as_f64)
+            .unwrap_or(f64::NAN)
+    };
     g.say(&format!(
-        "{}: voxelized, solved and traced; the atlas is {}. The full-volume map is not built yet; see `harmap info {}`.",
+        "{}: done. Seconds per stage: voxelize {:.2}, solve {:.2}, trace {:.2}, map {:.2}.\n  \
+         fields: {0}/phi, {0}/theta, {0}/psi (Zarr); seed table: {0}/seeds; atlas: {}\n  \
+         `harmap info {0}` shows the numbers; `harmap export {0} --format nifti|vti|csv|...` exports.",
         out.display(),
+        secs("voxelize"),
+        secs("solve"),
+        secs("trace"),
+        secs("map"),
         atlas.display(),
-        out.display()
     ));
     Ok(())
 }

@@ -172,6 +172,23 @@ impl Tile {
         ))
     }
 
+    /// The direction at node `g` (grid index z, y, x), if the tile holds it and it does
+    /// not vanish: the value [`Tile::direction`] interpolates from.
+    #[inline]
+    #[must_use]
+    pub fn node(&self, g: [i64; 3]) -> Option<DVec3> {
+        let l: [i64; 3] = std::array::from_fn(|a| g[a] - self.origin[a]);
+        if (0..3).any(|a| l[a] < 0 || l[a] >= self.shape[a] as i64) {
+            return None;
+        }
+        let n = self.nodes
+            [(l[0] as usize * self.shape[1] + l[1] as usize) * self.shape[2] + l[2] as usize];
+        if n[3].is_nan() || (n[0] == 0.0 && n[1] == 0.0 && n[2] == 0.0) {
+            return None;
+        }
+        Some(DVec3::new(f64::from(n[0]), f64::from(n[1]), f64::from(n[2])).normalize())
+    }
+
     /// The unit direction of descent of phi at `p`. Flat where the node directions
     /// around `p` cancel (a ridge between two basins) or vanish.
     #[inline]

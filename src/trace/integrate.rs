@@ -130,7 +130,8 @@ pub struct StopBall {
 
 impl StopBall {
     /// The first point of segment `a -> b` inside the ball, if any.
-    fn entry(&self, a: DVec3, b: DVec3) -> Option<DVec3> {
+    #[must_use]
+    pub fn entry(&self, a: DVec3, b: DVec3) -> Option<DVec3> {
         let r2 = self.radius * self.radius;
         let d = b - a;
         let f = a - self.center;

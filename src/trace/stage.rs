@@ -255,39 +255,23 @@ pub struct Traced {
     pub seconds: f64,
 }
 
-/// Trace the seeds of `run` (see [`trace`]) and return them without writing anything.
-pub fn trace_seeds(
-    run: &RunDir,
-    opts: &TraceOptions,
-    record_paths: bool,
-    progress: &dyn Progress,
-) -> Result<Traced, crate::Error> {
-    let attrs = run.require_stage("solve")?;
-    if !run.root().join("u/0").exists() {
-        return Err(options(format!(
-            "{}: solved by an older harmap that did not store u = 1 - phi; run `harmap solve` again",
-            run.root().display()
-        )));
-    }
-    let spec = run.grid()?;
-    // u = 1 - phi: the solve stores it because it keeps its precision where phi is
-    // within 1e-16 of 1.
-    let phi = run.open_image::<f64>("u")?;
-    let rk = opts.rk;
-    if !(rk.h_min > 0.0 && rk.h_max >= rk.h_min && rk.atol > 0.0) {
-        return Err(options(format!("integrator settings cannot work: {rk:?}")));
-    }
+/// The stop ball of a solved run: radius `stop_radius` voxels, or by default 4 center
+/// radii, within half the center's depth for thin shapes, never inside the sink.
+pub fn stop_ball(
+    attrs: &Value,
+    spec: &GridSpec,
+    stop_radius: Option<f64>,
+    root: &Path,
+) -> Result<StopBall, crate::Error> {
     let center_radius = attrs
         .pointer("/stages/voxelize/options/center_radius")
         .and_then(Value::as_f64)
         .unwrap_or(2.0);
-    // Default: well inside, where the sink's voxel shape has faded (4 center radii), but
-    // within half the center's depth for thin shapes, and never inside the sink.
     let depth = attrs
         .pointer("/stages/voxelize/result/center_depth")
         .and_then(Value::as_f64)
         .unwrap_or(f64::INFINITY);
-    let radius = opts.stop_radius.unwrap_or_else(|| {
+    let radius = stop_radius.unwrap_or_else(|| {
         let least = center_radius + 1.0;
         (4.0 * center_radius.max(1.0)).min(0.5 * depth).max(least)
     });
@@ -299,11 +283,138 @@ pub fn trace_seeds(
     let center: [f64; 3] = attrs
         .get("center")
         .and_then(|v| serde_json::from_value(v.clone()).ok())
-        .ok_or_else(|| options(format!("{}: the run has no center", run.root().display())))?;
-    let ball = StopBall {
+        .ok_or_else(|| options(format!("{}: the run has no center", root.display())))?;
+    Ok(StopBall {
         center: spec.world_to_voxel(DVec3::from_array(center)),
         radius,
-    };
+    })
+}
+
+/// Everything needed to trace streamlines on a solved run: the stored u = 1 - phi, the
+/// integrator, the stop ball and the tiling within the budget.
+pub struct Tracer {
+    /// u = 1 - phi (the solve stores it because it keeps its precision where phi is
+    /// within 1e-16 of 1).
+    pub u: crate::grid::ZarrStore<f64>,
+    /// The integrator.
+    pub rk: Rk45,
+    /// The stop ball.
+    pub ball: StopBall,
+    /// Tile edge and cache sizes.
+    pub tiling: Tiling,
+}
+
+impl Tracer {
+    /// Set up tracing of up to `lines` streamlines at once on `run` within `opts.mem`.
+    pub fn new(run: &RunDir, opts: &TraceOptions, lines: u64) -> Result<Self, crate::Error> {
+        let attrs = run.require_stage("solve")?;
+        if !run.root().join("u/0").exists() {
+            return Err(options(format!(
+                "{}: solved by an older harmap that did not store u = 1 - phi; run `harmap solve` again",
+                run.root().display()
+            )));
+        }
+        let spec = run.grid()?;
+        let u = run.open_image::<f64>("u")?;
+        let rk = opts.rk;
+        if !(rk.h_min > 0.0 && rk.h_max >= rk.h_min && rk.atol > 0.0) {
+            return Err(options(format!("integrator settings cannot work: {rk:?}")));
+        }
+        let ball = stop_ball(&attrs, &spec, opts.stop_radius, run.root())?;
+        let edge = opts
+            .tile
+            .unwrap_or(u.spec().chunk.iter().copied().max().unwrap_or(64));
+        if edge == 0 {
+            return Err(options(
+                "--tile 0: give a tile edge of at least 1 voxel".into(),
+            ));
+        }
+        let halo = Tiling::halo_for(&rk);
+        let (tile_bytes, chunk_bytes) = footprint(edge, halo, u.spec());
+        let line_bytes = lines * LINE_BYTES;
+        let threads = rayon::current_num_threads() as u64;
+        let work = opts.mem.work_bytes().saturating_sub(line_bytes);
+        // At least one tile per thread plus a chunk per tile's neighbourhood.
+        let need = threads * tile_bytes + 8 * chunk_bytes;
+        if work < need {
+            return Err(crate::grid::GridError::Budget {
+                budget: opts.mem.to_string(),
+                what: "tracing (tiles of node gradients and phi chunks)".into(),
+                needed: crate::grid::human(need + crate::grid::BASE_BYTES + line_bytes),
+                suggest: crate::grid::human(
+                    (need + crate::grid::BASE_BYTES + line_bytes).next_power_of_two(),
+                ),
+            }
+            .into());
+        }
+        let tiles_total = spec.shape.iter().map(|n| n.div_ceil(edge)).product::<u64>();
+        let cache_chunks = ((work / 3) / chunk_bytes).clamp(8, spec.num_blocks().max(8)) as usize;
+        let cache_tiles = (((work - cache_chunks as u64 * chunk_bytes) / tile_bytes).max(threads))
+            .min(tiles_total) as usize;
+        let tiling = Tiling {
+            grid: spec.shape,
+            edge,
+            halo,
+            cache_tiles,
+            cache_chunks,
+        };
+        Ok(Self {
+            u,
+            rk,
+            ball,
+            tiling,
+        })
+    }
+
+    /// Trace a streamline from each of `seeds` (voxel coordinates x, y, z): how each
+    /// ended, the points of each when `record_paths`, and the scheduler counters.
+    pub fn trace(
+        &self,
+        seeds: &[DVec3],
+        record_paths: bool,
+        progress: &dyn Progress,
+    ) -> Result<super::tiles::Traced, GridError> {
+        let lines: Vec<Line> = seeds
+            .iter()
+            .enumerate()
+            .map(|(i, &p)| Line {
+                id: i as u32,
+                p,
+                h: 0.5_f64.clamp(self.rk.h_min, self.rk.h_max),
+                steps: 0,
+                length: 0.0,
+                escapes: 0,
+            })
+            .collect();
+        trace_tiled(
+            &self.u,
+            &self.tiling,
+            &self.rk,
+            &self.ball,
+            lines,
+            record_paths,
+            progress,
+        )
+    }
+
+    /// phi at each point (voxel coordinates), trilinear.
+    pub fn phi_at(&self, pts: &[DVec3]) -> Result<Vec<f64>, GridError> {
+        seed_phi(&self.u, pts)
+    }
+}
+
+/// Bytes a streamline in flight holds (queues, outcome, ordering).
+pub const LINE_BYTES: u64 = 160;
+
+/// Trace the seeds of `run` (see [`trace`]) and return them without writing anything.
+pub fn trace_seeds(
+    run: &RunDir,
+    opts: &TraceOptions,
+    record_paths: bool,
+    progress: &dyn Progress,
+) -> Result<Traced, crate::Error> {
+    let attrs = run.require_stage("solve")?;
+    let spec = run.grid()?;
 
     // Seeds.
     let (mut seed_pts, mut vertex, surface) = match opts.seeds {
@@ -344,66 +455,19 @@ pub fn trace_seeds(
             run.root().display()
         )));
     }
-
-    // Tiles and caches under the budget.
-    let edge = opts
-        .tile
-        .unwrap_or(phi.spec().chunk.iter().copied().max().unwrap_or(64));
-    if edge == 0 {
-        return Err(options(
-            "--tile 0: give a tile edge of at least 1 voxel".into(),
-        ));
-    }
-    let halo = Tiling::halo_for(&rk);
-    let (tile_bytes, chunk_bytes) = footprint(edge, halo, phi.spec());
-    let line_bytes = seed_pts.len() as u64 * 160;
-    let threads = rayon::current_num_threads() as u64;
-    let work = opts.mem.work_bytes().saturating_sub(line_bytes);
-    // At least one tile per thread plus a chunk per tile's neighbourhood.
-    let need = threads * tile_bytes + 8 * chunk_bytes;
-    if work < need {
-        return Err(crate::grid::GridError::Budget {
-            budget: opts.mem.to_string(),
-            what: "tracing (tiles of node gradients and phi chunks)".into(),
-            needed: crate::grid::human(need + crate::grid::BASE_BYTES + line_bytes),
-            suggest: crate::grid::human(
-                (need + crate::grid::BASE_BYTES + line_bytes).next_power_of_two(),
-            ),
-        }
-        .into());
-    }
-    let tiles_total = spec.shape.iter().map(|n| n.div_ceil(edge)).product::<u64>();
-    let cache_chunks = ((work / 3) / chunk_bytes).clamp(8, spec.num_blocks().max(8)) as usize;
-    let cache_tiles = (((work - cache_chunks as u64 * chunk_bytes) / tile_bytes).max(threads))
-        .min(tiles_total) as usize;
-    let tiling = Tiling {
-        grid: spec.shape,
-        edge,
-        halo,
-        cache_tiles,
-        cache_chunks,
-    };
+    let tracer = Tracer::new(run, opts, seed_pts.len() as u64)?;
+    let tiling = tracer.tiling;
     progress.info(&format!(
-        "trace: {} seeds, tiles of {edge} (+{halo} halo), cache {cache_tiles} tiles and {cache_chunks} chunks",
-        seed_pts.len()
+        "trace: {} seeds, tiles of {} (+{} halo), cache {} tiles and {} chunks",
+        seed_pts.len(),
+        tiling.edge,
+        tiling.halo,
+        tiling.cache_tiles,
+        tiling.cache_chunks
     ));
-
-    let lines: Vec<Line> = seed_pts
-        .iter()
-        .enumerate()
-        .map(|(i, &p)| Line {
-            id: i as u32,
-            p,
-            h: 0.5_f64.clamp(rk.h_min, rk.h_max),
-            steps: 0,
-            length: 0.0,
-            escapes: 0,
-        })
-        .collect();
     let t = Instant::now();
-    let phi_at = seed_phi(&phi, &seed_pts)?;
-    let (outcomes, paths, stats) =
-        trace_tiled(&phi, &tiling, &rk, &ball, lines, record_paths, progress)?;
+    let phi_at = tracer.phi_at(&seed_pts)?;
+    let (outcomes, paths, stats) = tracer.trace(&seed_pts, record_paths, progress)?;
     Ok(Traced {
         seeds: seed_pts,
         vertex,
@@ -412,7 +476,7 @@ pub fn trace_seeds(
         phi: phi_at,
         paths,
         available,
-        ball,
+        ball: tracer.ball,
         tiling,
         stats,
         seconds: t.elapsed().as_secs_f64(),

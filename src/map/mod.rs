@@ -1,0 +1,280 @@
+//! `map`: (theta, psi) for every voxel of the solid (the paper's steps 8-9).
+//!
+//! - [`upwind`] (default): the arrival direction transported up u = 1 - phi from the
+//!   stop ball, block by block; one visit per block and a few rounds.
+//! - `exact`: a streamline from every voxel with the tracer of `trace` (the reference).
+//!
+//! Both write `RUN/theta/0` and `RUN/psi/0` (f32 radians, NaN outside the solid and where
+//! no direction was found) and record `harmap.stages.map`.
+
+pub mod upwind;
+
+use std::time::Instant;
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::grid::{BlockStore, Compression, GridError, MemBudget, ZarrStore};
+use crate::math::{volume, Idx3};
+use crate::parallel::map_bounded;
+use crate::progress::Progress;
+use crate::run::RunDir;
+use crate::trace::integrate::StopBall;
+use crate::trace::stage::{Tracer, LINE_BYTES};
+use crate::trace::{Stop, TraceOptions};
+use upwind::{is_target, Directions, TransportStats};
+
+/// How the full-volume map is computed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum MapMethod {
+    /// Upwind transport of the arrival direction (fast).
+    #[default]
+    Upwind,
+    /// A streamline from every voxel (the reference).
+    Exact,
+}
+
+/// Options of `harmap map`.
+#[derive(Clone, Debug, Serialize, Deserialize, Default)]
+pub struct MapOptions {
+    /// Upwind transport or exact tracing.
+    pub method: MapMethod,
+    /// Radius of the stop ball (voxels; default as in `trace`). Inside it the direction
+    /// is the one from the center.
+    pub stop_radius: Option<f64>,
+    /// Memory budget.
+    #[serde(skip)]
+    pub mem: MemBudget,
+}
+
+/// What a map did.
+#[derive(Clone, Debug, Serialize)]
+pub struct MapReport {
+    /// The method.
+    pub method: MapMethod,
+    /// Voxels of the solid (boundary, interior, center).
+    pub voxels: u64,
+    /// Voxels that have (theta, psi).
+    pub mapped: u64,
+    /// The stop ball's radius (voxels).
+    pub stop_radius: f64,
+    /// Upwind counters (upwind method).
+    pub upwind: Option<TransportStats>,
+    /// Streamlines per stop reason (exact method; voxels inside the stop ball count as
+    /// reached without a streamline).
+    pub stops: Option<std::collections::BTreeMap<&'static str, u64>>,
+    /// Seconds spent computing directions (without writing theta and psi).
+    pub seconds_directions: f64,
+}
+
+/// Compute the map of `run` and write `RUN/theta/0` and `RUN/psi/0`.
+pub fn map(
+    run: &RunDir,
+    opts: &MapOptions,
+    progress: &dyn Progress,
+) -> Result<MapReport, crate::Error> {
+    let t0 = Instant::now();
+    let _lock = run.lock()?;
+    let attrs = run.require_stage("solve")?;
+    if !run.root().join("u/0").exists() {
+        return Err(crate::trace::TraceError::Options(format!(
+            "{}: solved by an older harmap that did not store u = 1 - phi; run `harmap solve` again",
+            run.root().display()
+        ))
+        .into());
+    }
+    // A map killed half-way must not look done: forget the old record first.
+    run.update_attrs(|a| {
+        if let Some(s) = a.get_mut("stages").and_then(|s| s.as_object_mut()) {
+            s.remove("map");
+        }
+    })?;
+    let spec = run.grid()?;
+    let u = run.open_image::<f64>("u")?;
+    let labels = run.open_image::<u8>("labels")?;
+    let ball = crate::trace::stage::stop_ball(&attrs, &spec, opts.stop_radius, run.root())?;
+    let scratch = run.root().join("map.scratch");
+    if scratch.exists() {
+        std::fs::remove_dir_all(&scratch).map_err(|e| GridError::Io {
+            path: scratch.clone(),
+            source: e,
+        })?;
+    }
+    std::fs::create_dir_all(&scratch).map_err(|e| GridError::Io {
+        path: scratch.clone(),
+        source: e,
+    })?;
+    let threads = rayon::current_num_threads();
+    // The field stays in memory when it takes at most half the budget.
+    let in_memory = Directions::bytes(&spec) <= opts.mem.work_bytes() / 2;
+    let dirs = Directions::create(&scratch, &spec, in_memory)?;
+    let t = Instant::now();
+    let (upwind_stats, stops) = match opts.method {
+        MapMethod::Upwind => {
+            let workers = opts.mem.workers(
+                "the upwind map (a block of u, labels and directions per worker)",
+                if in_memory {
+                    Directions::bytes(&spec)
+                } else {
+                    0
+                },
+                upwind::worker_bytes(spec.chunk),
+                threads,
+            )?;
+            let s = upwind::transport(&u, &labels, &dirs, &ball, workers, progress)?;
+            (Some(s), None)
+        }
+        MapMethod::Exact => (
+            None,
+            Some(exact(run, opts, &labels, &dirs, &ball, progress)?),
+        ),
+    };
+    let seconds_directions = t.elapsed().as_secs_f64();
+    let (voxels, mapped) = write_angles(run, &labels, &dirs, opts.mem, progress)?;
+    let _ = std::fs::remove_dir_all(&scratch);
+    let report = MapReport {
+        method: opts.method,
+        voxels,
+        mapped,
+        stop_radius: ball.radius,
+        upwind: upwind_stats,
+        stops,
+        seconds_directions,
+    };
+    run.record_stage("map", t0.elapsed().as_secs_f64(), opts, &report)?;
+    Ok(report)
+}
+
+/// theta and psi from the directions, staged and renamed into place.
+fn write_angles(
+    run: &RunDir,
+    labels: &dyn BlockStore<u8>,
+    dirs: &Directions,
+    mem: MemBudget,
+    progress: &dyn Progress,
+) -> Result<(u64, u64), crate::Error> {
+    let spec = labels.spec().clone();
+    let theta: ZarrStore<f32> =
+        run.create_image_staged("theta", &spec, f32::NAN, Compression::Zstd(1))?;
+    let psi: ZarrStore<f32> =
+        run.create_image_staged("psi", &spec, f32::NAN, Compression::Zstd(1))?;
+    let per = volume(spec.chunk) * (1 + 12 + 32 + 8);
+    let workers = mem.workers(
+        "writing theta and psi",
+        0,
+        per,
+        rayon::current_num_threads(),
+    )?;
+    progress.start("map (writing theta, psi)", spec.num_blocks());
+    let counts = map_bounded(
+        &spec.block_indices(),
+        workers,
+        |&b| -> Result<(u64, u64), GridError> {
+            let lab = labels.read_block(b)?;
+            let d = dirs.read(b)?;
+            let mut th = vec![f32::NAN; lab.len()];
+            let mut ps = vec![f32::NAN; lab.len()];
+            let (mut n, mut m) = (0, 0);
+            for i in 0..lab.len() {
+                if !is_target(lab[i]) {
+                    continue;
+                }
+                n += 1;
+                if let Some(v) = d[i] {
+                    let (t, p) = crate::trace::angles(v);
+                    th[i] = t as f32;
+                    ps[i] = p as f32;
+                    m += 1;
+                }
+            }
+            theta.write_block(b, &th)?;
+            psi.write_block(b, &ps)?;
+            progress.advance(1);
+            Ok((n, m))
+        },
+    )?;
+    progress.finish();
+    run.commit_image("theta")?;
+    run.commit_image("psi")?;
+    Ok(counts.iter().fold((0, 0), |(a, b), (n, m)| (a + n, b + m)))
+}
+
+/// A block of an exact batch: its index, its directions, and (voxel, seed) pairs.
+type BatchBlock = (Idx3, Vec<Option<DVec3>>, Vec<(usize, usize)>);
+
+/// The exact map: a streamline from the center of every voxel of the solid outside the
+/// stop ball, in batches of whole blocks that fit the budget.
+fn exact(
+    run: &RunDir,
+    opts: &MapOptions,
+    labels: &dyn BlockStore<u8>,
+    dirs: &Directions,
+    ball: &StopBall,
+    progress: &dyn Progress,
+) -> Result<std::collections::BTreeMap<&'static str, u64>, crate::Error> {
+    let spec = labels.spec().clone();
+    let batch_lines = ((opts.mem.work_bytes() / 4) / (LINE_BYTES + 40)).clamp(10_000, 4_000_000);
+    let topts = TraceOptions {
+        stop_radius: Some(ball.radius),
+        mem: opts.mem,
+        ..TraceOptions::default()
+    };
+    let tracer = Tracer::new(run, &topts, batch_lines)?;
+    let mut stops: std::collections::BTreeMap<&'static str, u64> =
+        Stop::ALL.iter().map(|s| (s.name(), 0)).collect();
+    let blocks = spec.block_indices();
+    let mut i = 0;
+    while i < blocks.len() {
+        // Whole blocks until the batch is full.
+        let mut batch: Vec<BatchBlock> = Vec::new();
+        let mut seeds: Vec<DVec3> = Vec::new();
+        while i < blocks.len() && (batch.is_empty() || (seeds.len() as u64) < batch_lines) {
+            let b = blocks[i];
+            i += 1;
+            let lab = labels.read_block(b)?;
+            let st = spec.block_start(b);
+            let sh = spec.block_shape(b);
+            let mut d = vec![None; lab.len()];
+            let mut owners = Vec::new();
+            for (k, &l) in lab.iter().enumerate() {
+                if !is_target(l) {
+                    continue;
+                }
+                let v = [
+                    st[0] + k as u64 / (sh[1] * sh[2]),
+                    st[1] + (k as u64 / sh[2]) % sh[1],
+                    st[2] + k as u64 % sh[2],
+                ];
+                let p = DVec3::new(v[2] as f64, v[1] as f64, v[0] as f64);
+                let r = p - ball.center;
+                if r.length() <= ball.radius {
+                    let n = r.length();
+                    d[k] = Some(if n > 1e-12 { r / n } else { DVec3::Z });
+                    *stops.get_mut("reached").expect("reason") += 1;
+                } else {
+                    owners.push((k, seeds.len()));
+                    seeds.push(p);
+                }
+            }
+            batch.push((b, d, owners));
+        }
+        if !seeds.is_empty() {
+            let (outcomes, _, _) = tracer.trace(&seeds, false, progress)?;
+            for (_, d, owners) in &mut batch {
+                for &(k, s) in owners.iter() {
+                    let o = &outcomes[s];
+                    *stops.get_mut(o.stop.name()).expect("reason") += 1;
+                    if o.stop == Stop::Reached {
+                        let r = o.end - ball.center;
+                        d[k] = (r.length() > 0.0).then(|| r.normalize());
+                    }
+                }
+            }
+        }
+        for (b, d, _) in &batch {
+            dirs.write(*b, d)?;
+        }
+    }
+    Ok(stops)
+}

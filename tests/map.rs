@@ -1,0 +1,263 @@
+//! The map stage: (theta, psi) for every voxel. On the ball both the upwind transport
+//! and exact tracing are radial; upwind agrees with exact on a real shape; the fields do
+//! not depend on threads or the budget; errors.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+
+use glam::DVec3;
+use harmap::grid::{BlockStore, GridSpec, MemBudget};
+use harmap::map::{map, MapMethod, MapOptions, MapReport};
+use harmap::pipeline::standard_ball_run;
+use harmap::progress::Silent;
+use harmap::run::RunDir;
+use harmap::solve::{solve, SolveOptions};
+use harmap::voxelize::StandardBall;
+
+fn solved_ball(dir: &Path, n: u64, chunk: u64) -> PathBuf {
+    let out = dir.join(format!("ball{n}-{chunk}.harmap"));
+    let p = StandardBall {
+        n,
+        sink_radius: 2.0,
+        chunk,
+        mem: MemBudget::default(),
+    };
+    standard_ball_run(&p, &out, true, &Silent).unwrap();
+    let opts = SolveOptions {
+        rtol: 1e-8,
+        checkpoint_every: 0.0,
+        ..SolveOptions::default()
+    };
+    solve(
+        &RunDir::open(&out).unwrap(),
+        &opts,
+        &AtomicBool::new(false),
+        &Silent,
+    )
+    .unwrap();
+    out
+}
+
+fn run_map(run: &Path, method: MapMethod, mem: MemBudget) -> MapReport {
+    let opts = MapOptions {
+        method,
+        mem,
+        ..MapOptions::default()
+    };
+    map(&RunDir::open(run).unwrap(), &opts, &Silent).unwrap()
+}
+
+/// A whole field of the run, C order [z, y, x].
+fn field<T: harmap::grid::Scalar>(run: &Path, name: &str, fill: T) -> (GridSpec, Vec<T>) {
+    let r = RunDir::open(run).unwrap();
+    let s = r.open_image::<T>(name).unwrap();
+    let spec = s.spec().clone();
+    let shape = spec.shape.map(|c| c as usize);
+    (spec, s.read_region([0, 0, 0], shape, fill).unwrap().data)
+}
+
+/// The unit arrival direction of every voxel (None where theta is NaN).
+fn directions(run: &Path) -> Vec<Option<DVec3>> {
+    let (_, th) = field::<f32>(run, "theta", f32::NAN);
+    let (_, ps) = field::<f32>(run, "psi", f32::NAN);
+    th.iter()
+        .zip(&ps)
+        .map(|(&t, &p)| (!t.is_nan()).then(|| harmap::trace::unit(f64::from(t), f64::from(p))))
+        .collect()
+}
+
+fn quantile(v: &mut [f64], q: f64) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * q).round() as usize]
+}
+
+/// Angles (degrees) between the mapped and the radial direction, for voxels of the solid
+/// outside the stop ball: (all, those more than a voxel inside the ball's surface).
+fn radial_errors(run: &Path, stop_radius: f64) -> (Vec<f64>, Vec<f64>) {
+    let (spec, labels) = field::<u8>(run, "labels", 0);
+    let dirs = directions(run);
+    let c = DVec3::splat((spec.shape[0] as f64 - 1.0) / 2.0);
+    let big_r = 0.45 * spec.shape[0] as f64;
+    let [_, ny, nx] = spec.shape.map(|v| v as usize);
+    let (mut all, mut deep) = (Vec::new(), Vec::new());
+    for (i, &l) in labels.iter().enumerate() {
+        if !(1..=3).contains(&l) {
+            assert!(dirs[i].is_none(), "voxel {i} outside the solid has theta");
+            continue;
+        }
+        let p = DVec3::new(
+            (i % nx) as f64,
+            ((i / nx) % ny) as f64,
+            (i / (nx * ny)) as f64,
+        );
+        let r = p - c;
+        let d = dirs[i].unwrap_or_else(|| panic!("voxel {i} of the solid has no theta"));
+        if r.length() <= stop_radius {
+            // Inside the stop ball the direction is the one from the center.
+            if r.length() > 0.0 {
+                assert!(d.angle_between(r).to_degrees() < 1e-3);
+            }
+            continue;
+        }
+        let e = d.angle_between(r).to_degrees();
+        all.push(e);
+        if r.length() < big_r - 1.0 {
+            deep.push(e);
+        }
+    }
+    (all, deep)
+}
+
+#[test]
+fn upwind_and_exact_maps_of_the_ball_are_radial() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = solved_ball(dir.path(), 96, 32);
+    let rep = run_map(&run, MapMethod::Upwind, MemBudget::default());
+    assert_eq!(rep.mapped, rep.voxels);
+    let u = rep.upwind.unwrap();
+    assert_eq!(u.unreached, 0);
+    assert!(u.upwind > u.from_ball, "{u:?}");
+    let (mut all, mut deep) = radial_errors(&run, rep.stop_radius);
+    let (up50, up_deep_max, up_max) = (
+        quantile(&mut all, 0.5),
+        quantile(&mut deep, 1.0),
+        quantile(&mut all, 1.0),
+    );
+    eprintln!("upwind: median {up50:.3}, max {up_max:.3}, max below the surface {up_deep_max:.3}");
+    assert!(up50 < 0.2, "median {up50}");
+    assert!(
+        up_deep_max < 0.5,
+        "max below the boundary layer {up_deep_max}"
+    );
+    assert!(up_max < 1.5, "max {up_max}");
+
+    let rep = run_map(&run, MapMethod::Exact, MemBudget::default());
+    assert_eq!(rep.mapped, rep.voxels);
+    let (mut all, mut deep) = radial_errors(&run, rep.stop_radius);
+    let (ex50, ex_deep_max) = (quantile(&mut all, 0.5), quantile(&mut deep, 1.0));
+    eprintln!("exact: median {ex50:.3}, max below the surface {ex_deep_max:.3}");
+    assert!(ex50 < 0.1 && ex_deep_max < 0.5, "{ex50} {ex_deep_max}");
+    // The reference is the more accurate one.
+    assert!(ex50 < up50);
+}
+
+#[test]
+fn maps_are_the_same_for_any_threads_and_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = solved_ball(dir.path(), 48, 16);
+    let mut fields = Vec::new();
+    // 1 GiB keeps the directions in memory; 40 MiB puts them in scratch files.
+    for (threads, mem) in [(1, 1u64 << 30), (2, 1 << 30), (2, 40 << 20)] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let rep = pool.install(|| run_map(&run, MapMethod::Upwind, MemBudget(mem)));
+        assert_eq!(rep.mapped, rep.voxels);
+        let th = field::<f32>(&run, "theta", f32::NAN).1;
+        let ps = field::<f32>(&run, "psi", f32::NAN).1;
+        let bits: Vec<(u32, u32)> = th
+            .iter()
+            .zip(&ps)
+            .map(|(a, b)| (a.to_bits(), b.to_bits()))
+            .collect();
+        fields.push((threads, mem, bits));
+    }
+    for (threads, mem, f) in &fields[1..] {
+        assert!(
+            f == &fields[0].2,
+            "{threads} threads, --mem {mem}: theta/psi differ from 1 thread"
+        );
+    }
+    assert!(!run.join("map.scratch").exists(), "scratch left behind");
+}
+
+#[test]
+fn the_map_needs_a_solved_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("b.harmap");
+    let p = StandardBall {
+        n: 24,
+        sink_radius: 2.0,
+        chunk: 16,
+        mem: MemBudget::default(),
+    };
+    standard_ball_run(&p, &out, true, &Silent).unwrap();
+    let e = map(
+        &RunDir::open(&out).unwrap(),
+        &MapOptions::default(),
+        &Silent,
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("solve"), "{e}");
+    assert!(e.is_bad_input());
+    assert!(!out.join("theta").exists());
+}
+
+/// Spot at resolution 96: the upwind map against a streamline from every voxel.
+#[test]
+fn upwind_agrees_with_exact_tracing_on_spot() {
+    let Some(mesh) = crate::common::shared_data("meshes/spot.obj") else {
+        eprintln!("skipped: ../shared/data/meshes/spot.obj not found");
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("spot.harmap");
+    let opts = harmap::voxelize::VoxelizeOptions {
+        resolution: Some(96),
+        ..harmap::voxelize::VoxelizeOptions::default()
+    };
+    let iopts = harmap::input::InputOptions::default();
+    harmap::pipeline::voxelize_new_run(
+        &harmap::pipeline::Source::File(&mesh, &iopts),
+        &opts,
+        &run,
+        false,
+        &Silent,
+    )
+    .unwrap();
+    solve(
+        &RunDir::open(&run).unwrap(),
+        &SolveOptions {
+            checkpoint_every: 0.0,
+            ..SolveOptions::default()
+        },
+        &AtomicBool::new(false),
+        &Silent,
+    )
+    .unwrap();
+    let exact_run = dir.path().join("spot-exact.harmap");
+    copy_dir(&run, &exact_run);
+    let rep = run_map(&run, MapMethod::Upwind, MemBudget::default());
+    assert_eq!(rep.mapped, rep.voxels);
+    let rep = run_map(&exact_run, MapMethod::Exact, MemBudget::default());
+    let up = directions(&run);
+    let ex = directions(&exact_run);
+    let mut ang: Vec<f64> = up
+        .iter()
+        .zip(&ex)
+        .filter_map(|(a, b)| Some(a.as_ref()?.angle_between(*b.as_ref()?).to_degrees()))
+        .collect();
+    assert!(
+        ang.len() as f64 >= 0.999 * rep.voxels as f64,
+        "{} of {}",
+        ang.len(),
+        rep.voxels
+    );
+    let (p50, p95) = (quantile(&mut ang, 0.5), quantile(&mut ang, 0.95));
+    eprintln!("spot 96, upwind vs exact: median {p50:.3}, p95 {p95:.3} degrees");
+    assert!(p50 < 1.0 && p95 < 5.0, "median {p50}, p95 {p95}");
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let dest = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &dest);
+        } else {
+            std::fs::copy(e.path(), dest).unwrap();
+        }
+    }
+}
