@@ -2,6 +2,7 @@
 
 use std::path::PathBuf;
 
+use harmap::export::image::{export_image, export_ome_zarr, Field, ImageFormat};
 use harmap::grid::MemBudget;
 use harmap::run::RunDir;
 
@@ -21,6 +22,18 @@ use super::{Global, UsageError};
 ///                    traced again with the options of the run's trace (or --sample N
 ///                    of its seeds), with cell data seed, stop, theta, psi and point data
 ///                    arc_length
+///   nifti            one field (--field, default phi) as NIfTI-1 (.nii, or .nii.gz
+///                    compressed) with the affine that puts each voxel at its world
+///                    position (qform and sform); for neuroimaging tools
+///   vti              the fields (phi, theta, psi, labels, or --field) as VTK XML image
+///                    data, point data on the voxel centers; for ParaView
+///   dx               one field (--field, default phi) as an OpenDX scalar grid, as APBS
+///                    writes them; for VMD, PyMOL and APBS tools
+///   ome-zarr         the fields' OME-Zarr 0.5 image groups (checked, then copied) in a
+///                    new Zarr group at PATH; for napari and other OME-Zarr readers
+///
+/// Image exports are written slab by slab within --mem. NaN marks voxels without a
+/// value (outside the solid for theta and psi, outside the solved region for phi).
 ///
 /// The file is written under a temporary name and renamed when whole.
 ///
@@ -28,6 +41,9 @@ use super::{Global, UsageError};
 ///   harmap export spot.harmap --format csv -o spot-seeds.csv
 ///   harmap export spot.harmap --format obj-sphere -o spot-sphere.obj
 ///   harmap export spot.harmap --format vtk-streamlines --sample 2000 -o spot-lines.vtk
+///   harmap export spot.harmap --format nifti --field theta -o spot-theta.nii.gz
+///   harmap export spot.harmap --format vti -o spot.vti
+///   harmap export 1crn.harmap --format dx --field phi -o 1crn-phi.dx
 #[derive(clap::Args, Debug)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
@@ -42,7 +58,11 @@ pub struct Args {
     /// vtk-streamlines: trace this many of the seeds (a deterministic subset).
     #[arg(long, value_name = "N")]
     pub sample: Option<u64>,
-    /// Memory budget (vtk-streamlines traces again).
+    /// Image formats: the field to write (nifti and dx: default phi; vti: default all;
+    /// ome-zarr: default all).
+    #[arg(long, value_enum)]
+    pub field: Option<FieldArg>,
+    /// Memory budget (vtk-streamlines traces again; images are written in slabs).
     #[arg(long, value_name = "SIZE", default_value = "1GiB")]
     pub mem: MemBudget,
 }
@@ -56,6 +76,46 @@ pub enum Format {
     ObjSphere,
     /// Streamlines as VTK legacy polydata.
     VtkStreamlines,
+    /// One field as NIfTI-1.
+    Nifti,
+    /// Fields as VTK XML image data.
+    Vti,
+    /// One field as OpenDX.
+    Dx,
+    /// Fields as OME-Zarr image groups.
+    OmeZarr,
+}
+
+/// `--field` values.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum FieldArg {
+    /// The potential.
+    Phi,
+    /// Polar angle of arrival (radians).
+    Theta,
+    /// Azimuth of arrival (radians).
+    Psi,
+    /// Voxel labels.
+    Labels,
+}
+
+impl FieldArg {
+    fn field(self) -> Field {
+        match self {
+            FieldArg::Phi => Field::Phi,
+            FieldArg::Theta => Field::Theta,
+            FieldArg::Psi => Field::Psi,
+            FieldArg::Labels => Field::Labels,
+        }
+    }
+}
+
+/// The fields a multi-field export writes by default: all the run has.
+fn available(run: &RunDir) -> Vec<Field> {
+    Field::ALL
+        .into_iter()
+        .filter(|f| run.root().join(f.name()).join("0").exists())
+        .collect()
 }
 
 /// Run `harmap export`.
@@ -64,6 +124,18 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     if a.sample.is_some() && !matches!(a.format, Format::VtkStreamlines) {
         return Err(UsageError("--sample applies to --format vtk-streamlines only".into()).into());
     }
+    let image = matches!(
+        a.format,
+        Format::Nifti | Format::Vti | Format::Dx | Format::OmeZarr
+    );
+    if a.field.is_some() && !image {
+        return Err(UsageError(
+            "--field applies to the image formats (nifti, vti, dx, ome-zarr)".into(),
+        )
+        .into());
+    }
+    let one = a.field.map_or(Field::Phi, FieldArg::field);
+    let some = a.field.map_or_else(|| available(&run), |f| vec![f.field()]);
     let (n, what) = match a.format {
         Format::Csv => (harmap::export::seeds_csv(&run, &a.output)?, "seeds"),
         Format::ObjSphere => (harmap::export::obj_sphere(&run, &a.output)?, "triangles"),
@@ -71,6 +143,27 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
             harmap::export::vtk_streamlines(&run, &a.output, a.sample, a.mem, &Bars::new(g))?,
             "streamlines",
         ),
+        Format::Nifti | Format::Dx => {
+            let fmt = if matches!(a.format, Format::Nifti) {
+                ImageFormat::Nifti
+            } else {
+                ImageFormat::Dx
+            };
+            let n = export_image(&run, fmt, &[one], &a.output, a.mem, &Bars::new(g))?;
+            (n, "voxels")
+        }
+        Format::Vti => (
+            export_image(
+                &run,
+                ImageFormat::Vti,
+                &some,
+                &a.output,
+                a.mem,
+                &Bars::new(g),
+            )?,
+            "voxels per field",
+        ),
+        Format::OmeZarr => (export_ome_zarr(&run, &some, &a.output)?, "images"),
     };
     g.say(&format!("{}: {n} {what}", a.output.display()));
     Ok(())

@@ -1,8 +1,11 @@
 //! Exports of a run's results for other tools: the seed table as CSV, the boundary ->
-//! sphere map as an OBJ mesh, and the streamlines as VTK legacy polydata.
+//! sphere map as an OBJ mesh, the streamlines as VTK legacy polydata, and the fields as
+//! images ([`image`]: NIfTI-1, VTK image data, OpenDX, OME-Zarr).
 //!
 //! Every export is written to a temporary name next to the destination and renamed when
 //! whole, so a killed export never leaves a truncated file under the real name.
+
+pub mod image;
 
 use std::fmt::Write as _;
 use std::fs;
