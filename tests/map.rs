@@ -2,6 +2,7 @@
 //! and exact tracing are radial; upwind agrees with exact on a real shape; the fields do
 //! not depend on threads or the budget; errors.
 
+use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
@@ -259,5 +260,134 @@ fn copy_dir(from: &Path, to: &Path) {
         } else {
             std::fs::copy(e.path(), dest).unwrap();
         }
+    }
+}
+
+/// inverse(forward(x)) for sampled voxels of `run` (forward: the run's u, theta, psi at
+/// the voxel): the distances (voxels) back to each voxel, and the failed rows.
+fn round_trip(run: &Path, samples: usize) -> (Vec<f64>, u64) {
+    let (spec, labels) = field::<u8>(run, "labels", 0);
+    let (_, u) = field::<f64>(run, "u", f64::NAN);
+    let (_, th) = field::<f32>(run, "theta", f32::NAN);
+    let (_, ps) = field::<f32>(run, "psi", f32::NAN);
+    let solid: Vec<usize> = (0..labels.len())
+        .filter(|&i| matches!(labels[i], 1 | 2) && !th[i].is_nan())
+        .collect();
+    let mut rng = crate::common::Rng(7);
+    let pick: Vec<usize> = (0..samples)
+        .map(|_| solid[(rng.next_f64() * solid.len() as f64) as usize % solid.len()])
+        .collect();
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("in.csv");
+    let mut text = String::from("u,theta,psi\n");
+    for &i in &pick {
+        let _ = writeln!(text, "{:?},{:?},{:?}", u[i], th[i], ps[i]);
+    }
+    std::fs::write(&input, text).unwrap();
+    let out = dir.path().join("out.csv");
+    let c = harmap::map::inverse::inverse_csv(
+        &RunDir::open(run).unwrap(),
+        &input,
+        &out,
+        MemBudget::default(),
+        &Silent,
+    )
+    .unwrap();
+    assert_eq!(c.rows, samples as u64);
+    let [_, ny, nx] = spec.shape.map(|v| v as usize);
+    let o = DVec3::from_array(spec.origin);
+    let mut d = Vec::new();
+    for (line, &i) in std::fs::read_to_string(&out)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .zip(&pick)
+    {
+        let f: Vec<&str> = line.split(',').collect();
+        if f[6] != "ok" {
+            continue;
+        }
+        let p = DVec3::new(
+            f[3].parse().unwrap(),
+            f[4].parse().unwrap(),
+            f[5].parse().unwrap(),
+        );
+        let v = (p - o) / spec.spacing;
+        let want = DVec3::new(
+            (i % nx) as f64,
+            ((i / nx) % ny) as f64,
+            (i / (nx * ny)) as f64,
+        );
+        d.push((v - want).length());
+    }
+    (d, c.failed)
+}
+
+#[test]
+fn the_inverse_of_the_exact_map_returns_to_the_voxel() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = solved_ball(dir.path(), 48, 16);
+    run_map(&run, MapMethod::Exact, MemBudget::default());
+    let (mut d, failed) = round_trip(&run, 2000);
+    assert_eq!(failed, 0);
+    let (p50, p99) = (quantile(&mut d, 0.5), quantile(&mut d, 0.99));
+    eprintln!("ball 48: inverse(forward(x)) - x: median {p50:.4}, p99 {p99:.4} voxels");
+    assert!(p50 < 0.25 && p99 < 1.0, "median {p50}, p99 {p99}");
+}
+
+#[test]
+fn the_inverse_names_rows_it_cannot_place_and_refuses_bad_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = solved_ball(dir.path(), 32, 16);
+    let r = RunDir::open(&run).unwrap();
+    let input = dir.path().join("in.csv");
+    let out = dir.path().join("out.csv");
+    std::fs::write(
+        &input,
+        "phi,theta,psi\n0.5,1.0,0.5\n1.5,1.0,0.5\n0.5,4.0,0.0\n",
+    )
+    .unwrap();
+    let c =
+        harmap::map::inverse::inverse_csv(&r, &input, &out, MemBudget::default(), &Silent).unwrap();
+    assert_eq!((c.rows, c.failed), (3, 2));
+    let text = std::fs::read_to_string(&out).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    assert!(lines[1].ends_with(",ok"), "{}", lines[1]);
+    assert!(
+        lines[2].contains(",,,,phi 1.5 is outside [0; 1]"),
+        "{}",
+        lines[2]
+    );
+    assert!(lines[3].contains("theta 4"), "{}", lines[3]);
+    // phi = 0.5 at (theta, psi) lands where phi is 0.5, in that direction.
+    let f: Vec<f64> = lines[1]
+        .split(',')
+        .take(6)
+        .map(|v| v.parse().unwrap())
+        .collect();
+    let spec = r.grid().unwrap();
+    let c0 = DVec3::splat(15.5 * spec.spacing) + DVec3::from_array(spec.origin);
+    let dir_got = (DVec3::new(f[3], f[4], f[5]) - c0).normalize();
+    assert!(
+        dir_got
+            .angle_between(harmap::trace::unit(1.0, 0.5))
+            .to_degrees()
+            < 1.0
+    );
+
+    for (bad, what) in [
+        ("phi,theta\n0.5,1\n", "no column `psi`"),
+        (
+            "phi,theta,psi\n0.5,abc,1\n",
+            "in.csv:2: `abc` in column theta is not a number",
+        ),
+        ("phi,theta,psi\n0.5,1\n", "in.csv:2: 2 columns"),
+        ("", "empty file"),
+    ] {
+        std::fs::write(&input, bad).unwrap();
+        let e = harmap::map::inverse::inverse_csv(&r, &input, &out, MemBudget::default(), &Silent)
+            .unwrap_err();
+        assert!(e.to_string().contains(what), "{bad:?}: {e}");
+        assert!(e.is_bad_input());
     }
 }

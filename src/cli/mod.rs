@@ -8,6 +8,7 @@ mod atlas;
 mod bench;
 mod export;
 mod info;
+mod inverse;
 mod map;
 mod progress;
 mod run;
@@ -75,6 +76,7 @@ enum Command {
     Solve(solve::Args),
     Trace(trace::Args),
     Map(map::Args),
+    Inverse(inverse::Args),
     Atlas(atlas::Args),
     Export(export::Args),
     Info(info::Args),
@@ -179,6 +181,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Solve(a) => solve::run(&a, &global),
         Command::Trace(a) => trace::run(&a, &global),
         Command::Map(a) => map::run(&a, &global),
+        Command::Inverse(a) => inverse::run(&a, &global),
         Command::Atlas(a) => atlas::run(&a, &global),
         Command::Export(a) => export::run(&a, &global),
         Command::Info(a) => info::run(&a, &global),

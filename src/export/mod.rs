@@ -36,14 +36,14 @@ pub enum ExportError {
 }
 
 /// A file written under a temporary name and renamed into place by [`Staged::commit`].
-struct Staged {
+pub(crate) struct Staged {
     tmp: PathBuf,
     dest: PathBuf,
-    out: BufWriter<fs::File>,
+    pub(crate) out: BufWriter<fs::File>,
 }
 
 impl Staged {
-    fn create(dest: &Path) -> Result<Self, ExportError> {
+    pub(crate) fn create(dest: &Path) -> Result<Self, ExportError> {
         let name = dest
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -60,14 +60,14 @@ impl Staged {
         })
     }
 
-    fn io(&self, e: std::io::Error) -> ExportError {
+    pub(crate) fn io(&self, e: std::io::Error) -> ExportError {
         ExportError::Io {
             path: self.dest.clone(),
             source: e,
         }
     }
 
-    fn commit(self) -> Result<(), ExportError> {
+    pub(crate) fn commit(self) -> Result<(), ExportError> {
         let dest = self.dest.clone();
         let io = |e: std::io::Error| ExportError::Io {
             path: dest.clone(),

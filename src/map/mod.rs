@@ -7,6 +7,7 @@
 //! Both write `RUN/theta/0` and `RUN/psi/0` (f32 radians, NaN outside the solid and where
 //! no direction was found) and record `harmap.stages.map`.
 
+pub mod inverse;
 pub mod upwind;
 
 use std::time::Instant;
