@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use harmap::math::Vec3;
+use harmap::run::RunDir;
 
 use crate::common::{sphere, torus, write_obj};
 
@@ -382,4 +383,80 @@ fn run_reuses_only_a_matching_voxelization() {
         "{}",
         stderr(&other)
     );
+}
+
+/// `harmap run` killed (SIGKILL) during its solve and started again with the same
+/// command: the voxelization is kept, the solve resumes from its checkpoint, and the run
+/// finishes with every stage.
+#[test]
+fn a_killed_run_resumes_without_voxelizing_again() {
+    let d = tempfile::tempdir().unwrap();
+    let shape = d.path().join("s.obj");
+    write_obj(&shape, &sphere(Vec3::ZERO, 1.0, 16, 32));
+    let out = d.path().join("s.harmap");
+    let (s, o) = (shape.to_str().unwrap(), out.to_str().unwrap());
+    // A slow solve (Jacobi to a tight residual) with checkpoints every 20 ms.
+    let args = [
+        "-q",
+        "--progress",
+        "never",
+        "run",
+        s,
+        "-o",
+        o,
+        "--resolution",
+        "36",
+        "--method",
+        "jacobi",
+        "--rtol",
+        "1e-9",
+        "--max-iter",
+        "100000",
+        "--checkpoint-every",
+        "0.02s",
+    ];
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_harmap"))
+        .args(args)
+        .spawn()
+        .unwrap();
+    let manifest = out.join("solve/manifest.json");
+    let t = std::time::Instant::now();
+    while !manifest.exists() {
+        assert!(t.elapsed().as_secs() < 60, "no checkpoint appeared");
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(50));
+    let _ = child.kill();
+    let _ = child.wait();
+    assert!(
+        !out.join("phi").exists(),
+        "the solve finished before the kill"
+    );
+    let labels_before = std::fs::metadata(out.join("labels/zarr.json"))
+        .unwrap()
+        .modified()
+        .unwrap();
+    let mut again: Vec<&str> = args.to_vec();
+    again.retain(|a| *a != "-q");
+    let r = harmap(&again);
+    let text = String::from_utf8_lossy(&r.stdout);
+    assert!(r.status.success(), "{}{}", text, stderr(&r));
+    assert!(text.contains("voxelize: already done"), "{text}");
+    let attrs = RunDir::open(&out).unwrap().attrs().unwrap();
+    assert!(
+        attrs
+            .pointer("/stages/solve/result/resumed_at")
+            .and_then(|v| v.as_u64())
+            .unwrap()
+            > 0,
+        "the solve did not resume"
+    );
+    for stage in ["voxelize", "solve", "trace", "map"] {
+        assert!(harmap::run::stage_done(&attrs, stage), "{stage} not done");
+    }
+    let labels_after = std::fs::metadata(out.join("labels/zarr.json"))
+        .unwrap()
+        .modified()
+        .unwrap();
+    assert_eq!(labels_before, labels_after, "labels were written again");
 }

@@ -8,6 +8,7 @@ use harmap::pipeline::{voxelize_new_run, Source};
 use harmap::run::RunDir;
 
 use super::progress::Bars;
+use super::solve::{MethodArg, SolveArgs};
 use super::voxelize::VoxelizeArgs;
 use super::{Global, UsageError};
 
@@ -37,6 +38,24 @@ pub struct Args {
     pub force: bool,
     #[command(flatten)]
     pub opts: VoxelizeArgs,
+    /// Solve: multigrid, sor or jacobi.
+    #[arg(long, value_enum, default_value_t = MethodArg::Multigrid, help_heading = "Solve")]
+    pub method: MethodArg,
+    /// Solve: stop at this relative residual.
+    #[arg(long, value_name = "R", default_value_t = 1e-6, help_heading = "Solve")]
+    pub rtol: f64,
+    /// Solve: iteration limit.
+    #[arg(long, value_name = "N", default_value_t = 1000, help_heading = "Solve")]
+    pub max_iter: u64,
+    /// Solve: time between checkpoints (90s, 10m; 0: only when interrupted).
+    #[arg(long, value_name = "DURATION", default_value = "5m", value_parser = super::solve::parse_duration, help_heading = "Solve")]
+    pub checkpoint_every: f64,
+    /// Trace and map: radius of the stop ball, voxels [default: as `harmap trace`].
+    #[arg(long, value_name = "VOXELS", help_heading = "Trace and map")]
+    pub stop_radius: Option<f64>,
+    /// Map: trace from every voxel instead of the upwind transport.
+    #[arg(long, help_heading = "Trace and map")]
+    pub exact: bool,
 }
 
 /// Run `harmap run`.
@@ -93,11 +112,17 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     } else {
         // Continue an interrupted solve from its checkpoint when there is one.
         let resume = out.join("solve/manifest.json").exists();
-        let opts = harmap::solve::SolveOptions {
+        let opts = SolveArgs {
+            method: a.method,
+            rtol: a.rtol,
+            tol: 0.0,
+            eps: 1e-4,
+            max_iter: a.max_iter,
+            omega: None,
+            checkpoint_every: a.checkpoint_every,
             mem: a.opts.mem,
-            resume,
-            ..harmap::solve::SolveOptions::default()
-        };
+        }
+        .options(resume);
         let stop = super::solve::stop_flag()?;
         let t = std::time::Instant::now();
         let r = harmap::solve::solve(&run, &opts, &stop, &Bars::new(g))?;
@@ -121,6 +146,7 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
             } else {
                 harmap::trace::SeedKind::Boundary
             },
+            stop_radius: a.stop_radius,
             mem: a.opts.mem,
             ..harmap::trace::TraceOptions::default()
         };
@@ -138,11 +164,11 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         let stop_radius = attrs
             .pointer("/stages/trace/options/stop_radius")
             .and_then(serde_json::Value::as_f64);
-        let opts = harmap::map::MapOptions {
-            stop_radius,
+        let opts = super::map::MapArgs {
+            exact: a.exact,
             mem: a.opts.mem,
-            ..harmap::map::MapOptions::default()
-        };
+        }
+        .options(stop_radius);
         let t = std::time::Instant::now();
         let r = harmap::map::map(&run, &opts, &Bars::new(g))?;
         g.say(&format!(
@@ -159,8 +185,32 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
             .and_then(serde_json::Value::as_f64)
             .unwrap_or(f64::NAN)
     };
+    let trace = attrs.pointer("/stages/trace/result");
+    let num = |p: &str| {
+        trace
+            .and_then(|t| t.pointer(p))
+            .cloned()
+            .unwrap_or_default()
+    };
+    let bijectivity = match trace
+        .and_then(|t| t.get("surface"))
+        .filter(|s| !s.is_null())
+    {
+        Some(_) => format!(
+            "{} of {} surface triangles flipped on the sphere, {} colliding seeds",
+            num("/surface/flipped"),
+            num("/surface/measured"),
+            num("/collisions/seeds")
+        ),
+        None => format!("{} colliding seeds", num("/collisions/seeds")),
+    };
+    let mapped = attrs
+        .pointer("/stages/map/result")
+        .map(|m| format!("{} of {} voxels", m["mapped"], m["voxels"]))
+        .unwrap_or_default();
     g.say(&format!(
         "{}: done. Seconds per stage: voxelize {:.2}, solve {:.2}, trace {:.2}, map {:.2}.\n  \
+         {:.3}% of the streamlines reached the center; {bijectivity}; {mapped} mapped.\n  \
          fields: {0}/phi, {0}/theta, {0}/psi (Zarr); seed table: {0}/seeds; atlas: {}\n  \
          `harmap info {0}` shows the numbers; `harmap export {0} --format nifti|vti|csv|...` exports.",
         out.display(),
@@ -168,6 +218,7 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         secs("solve"),
         secs("trace"),
         secs("map"),
+        100.0 * num("/reached_fraction").as_f64().unwrap_or(f64::NAN),
         atlas.display(),
     ));
     Ok(())

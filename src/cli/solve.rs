@@ -111,7 +111,7 @@ impl SolveArgs {
 }
 
 /// Parse `90s`, `10m`, `1h`, or plain seconds.
-fn parse_duration(s: &str) -> Result<f64, String> {
+pub fn parse_duration(s: &str) -> Result<f64, String> {
     let t = s.trim();
     let (num, mult) = match t.chars().last() {
         Some('s') => (&t[..t.len() - 1], 1.0),
