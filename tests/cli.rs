@@ -446,7 +446,7 @@ fn a_killed_run_resumes_without_voxelizing_again() {
     assert!(
         attrs
             .pointer("/stages/solve/result/resumed_at")
-            .and_then(|v| v.as_u64())
+            .and_then(serde_json::Value::as_u64)
             .unwrap()
             > 0,
         "the solve did not resume"
