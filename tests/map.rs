@@ -265,7 +265,7 @@ fn copy_dir(from: &Path, to: &Path) {
 
 /// inverse(forward(x)) for sampled voxels of `run` (forward: the run's u, theta, psi at
 /// the voxel): the distances (voxels) back to each voxel, and the failed rows.
-fn round_trip(run: &Path, samples: usize) -> (Vec<f64>, u64) {
+fn round_trip(run: &Path, samples: usize) -> (Vec<f64>, u64, String) {
     let (spec, labels) = field::<u8>(run, "labels", 0);
     let (_, u) = field::<f64>(run, "u", f64::NAN);
     let (_, th) = field::<f32>(run, "theta", f32::NAN);
@@ -294,6 +294,28 @@ fn round_trip(run: &Path, samples: usize) -> (Vec<f64>, u64) {
     )
     .unwrap();
     assert_eq!(c.rows, samples as u64);
+    // One thread and a budget that holds a few tiles (so they are evicted and rebuilt):
+    // the same bytes.
+    let small = dir.path().join("small.csv");
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    pool.install(|| {
+        harmap::map::inverse::inverse_csv(
+            &RunDir::open(run).unwrap(),
+            &input,
+            &small,
+            MemBudget(26 << 20),
+            &Silent,
+        )
+    })
+    .unwrap();
+    let text = std::fs::read_to_string(&out).unwrap();
+    assert!(
+        text == std::fs::read_to_string(&small).unwrap(),
+        "the inverse differs with 1 thread and a small budget"
+    );
     let [_, ny, nx] = spec.shape.map(|v| v as usize);
     let o = DVec3::from_array(spec.origin);
     let mut d = Vec::new();
@@ -320,7 +342,7 @@ fn round_trip(run: &Path, samples: usize) -> (Vec<f64>, u64) {
         );
         d.push((v - want).length());
     }
-    (d, c.failed)
+    (d, c.failed, text)
 }
 
 #[test]
@@ -328,7 +350,7 @@ fn the_inverse_of_the_exact_map_returns_to_the_voxel() {
     let dir = tempfile::tempdir().unwrap();
     let run = solved_ball(dir.path(), 48, 16);
     run_map(&run, MapMethod::Exact, MemBudget::default());
-    let (mut d, failed) = round_trip(&run, 2000);
+    let (mut d, failed, _) = round_trip(&run, 2000);
     assert_eq!(failed, 0);
     let (p50, p99) = (quantile(&mut d, 0.5), quantile(&mut d, 0.99));
     eprintln!("ball 48: inverse(forward(x)) - x: median {p50:.4}, p99 {p99:.4} voxels");

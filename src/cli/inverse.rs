@@ -21,8 +21,8 @@ use super::Global;
 /// present: in thin parts phi rounds to 1 in f64 and no longer tells points apart.
 /// OUT.csv gets phi (or u),theta,psi,x,y,z,status per row; where a row has no point
 /// (phi outside [0, 1], a direction whose streamline leaves the solid, ...) x, y, z are
-/// empty and status says why. The whole direction field is held in memory (24 bytes per
-/// voxel while it is built); a grid that does not fit --mem is refused.
+/// empty and status says why. The direction field is built in tiles, into a cache that
+/// stays within --mem.
 ///
 /// Examples:
 ///   harmap inverse spot.harmap --points params.csv -o points.csv

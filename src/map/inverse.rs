@@ -8,8 +8,12 @@
 //! the forward map is the direction from the center, so a phi below the stop sphere's is
 //! found on the ray from the center by bisection.
 //!
-//! The field is held whole (16 bytes per voxel, plus 8 while it is built); a grid whose
-//! field does not fit `--mem` is refused with the budget it needs.
+//! Out of core: the field is built tile by tile (the tracer's node directions, with a
+//! halo, so a point's value is the same in whichever tile holds it) into a cache bounded
+//! by `--mem`; points are processed in the order of their directions, so consecutive
+//! points climb through the same tiles.
+
+use std::sync::Arc;
 
 use glam::DVec3;
 
@@ -26,16 +30,93 @@ const MAX_STEPS: usize = 200_000;
 /// Where a point of the inverse map is, or why it has none.
 pub type InverseResult = Result<DVec3, String>;
 
-/// The inverse map of a mapped (solved) run, ready to evaluate.
+/// Tiles of the direction field, built on demand into an LRU cache.
+struct Tiles {
+    u: crate::grid::ZarrStore<f64>,
+    grid: crate::math::Idx3,
+    edge: u64,
+    halo: i64,
+    cache: std::sync::Mutex<crate::trace::tiles::Lru<Tile>>,
+}
+
+impl Tiles {
+    fn key(&self, p: DVec3) -> ([u64; 3], u64) {
+        let c = [p.z, p.y, p.x];
+        let n = self.grid.map(|g| g.div_ceil(self.edge));
+        let t: [u64; 3] = std::array::from_fn(|a| {
+            let f = c[a].floor();
+            let i = if f < 0.0 { 0 } else { f as u64 / self.edge };
+            i.min(n[a] - 1)
+        });
+        (t, (t[0] * n[1] + t[1]) * n[2] + t[2])
+    }
+
+    /// The tile that owns the cell of `p`, with its halo.
+    fn get(&self, p: DVec3) -> Result<Arc<Tile>, GridError> {
+        let (t, k) = self.key(p);
+        if let Some(tile) = self.cache.lock().expect("lock").get(k) {
+            return Ok(tile);
+        }
+        let origin: [i64; 3] = std::array::from_fn(|a| (t[a] * self.edge) as i64 - self.halo);
+        let shape: [usize; 3] = std::array::from_fn(|a| {
+            let hi = ((t[a] + 1) * self.edge).min(self.grid[a]) as i64 + self.halo;
+            (hi - origin[a]) as usize
+        });
+        let block = self
+            .u
+            .read_region(origin.map(|o| o - 1), shape.map(|s| s + 2), f64::NAN)?;
+        let tile = Arc::new(Tile::from_u(&block, origin, shape));
+        self.cache.lock().expect("lock").put(k, tile.clone());
+        Ok(tile)
+    }
+}
+
+/// The tile a point is in, kept while the point stays well inside it.
+struct Cursor<'a> {
+    tiles: &'a Tiles,
+    tile: Option<Arc<Tile>>,
+    error: Option<GridError>,
+}
+
+impl Cursor<'_> {
+    fn tile(&mut self, p: DVec3) -> Option<&Tile> {
+        let inside = |t: &Tile| {
+            let c = [p.z.floor() as i64, p.y.floor() as i64, p.x.floor() as i64];
+            (0..3).all(|a| c[a] - 2 >= t.origin[a] && c[a] + 3 < t.origin[a] + t.shape[a] as i64)
+        };
+        if !self.tile.as_deref().is_some_and(inside) {
+            match self.tiles.get(p) {
+                Ok(t) => self.tile = Some(t),
+                Err(e) => {
+                    self.error = Some(e);
+                    return None;
+                }
+            }
+        }
+        self.tile.as_deref()
+    }
+
+    /// u = 1 - phi at `p`, if every corner of its cell has one.
+    fn u(&mut self, p: DVec3) -> Option<f64> {
+        self.tile(p)?.interpolate(p).ok().map(|(_, u)| u)
+    }
+
+    /// The direction up phi (down u) at `p`.
+    fn back(&mut self, p: DVec3) -> Option<DVec3> {
+        self.tile(p)?.direction(p).ok().map(|v| -v)
+    }
+}
+
+/// The inverse map of a solved run, ready to evaluate.
 pub struct Inverse {
-    tile: Tile,
+    tiles: Tiles,
     ball: StopBall,
     origin: DVec3,
     spacing: f64,
 }
 
 impl Inverse {
-    /// Load the direction field of `run` within `mem`.
+    /// Set up the inverse of `run` within `mem`.
     pub fn new(
         run: &RunDir,
         stop_radius: Option<f64>,
@@ -44,32 +125,42 @@ impl Inverse {
         let attrs = run.require_stage("solve")?;
         let spec = run.grid()?;
         let ball = crate::trace::stage::stop_ball(&attrs, &spec, stop_radius, run.root())?;
-        let n = spec.num_voxels();
-        let need = n * 24;
-        if need > mem.work_bytes() {
+        let u = run.open_image::<f64>("u")?;
+        let edge = spec.chunk.iter().copied().max().unwrap_or(64);
+        let halo = 3;
+        let nodes = (edge + 2 * halo as u64 + 2).pow(3);
+        // A tile (16 B per node); building one holds u over it (8 B per node) and the
+        // chunks the region is assembled from.
+        let tile_bytes = nodes * 16;
+        let build = nodes * 8 + 8 * crate::math::volume(spec.chunk) * 8;
+        let threads = rayon::current_num_threads() as u64;
+        let avail = mem.work_bytes().saturating_sub(threads * build);
+        let cap = avail / tile_bytes;
+        if cap < threads + 1 {
+            let need = (threads + 1) * tile_bytes + threads * build;
             return Err(GridError::Budget {
                 budget: mem.to_string(),
-                what: "the inverse map (the whole direction field)".into(),
+                what: "the inverse map (tiles of the direction field)".into(),
                 needed: crate::grid::human(need + crate::grid::BASE_BYTES),
                 suggest: crate::grid::human((need + crate::grid::BASE_BYTES).next_power_of_two()),
             }
             .into());
         }
-        let u = run.open_image::<f64>("u")?;
-        let s = spec.shape;
-        let block = u.read_region([-1, -1, -1], s.map(|c| c as usize + 2), f64::NAN)?;
-        let tile = Tile::from_u(&block, [0, 0, 0], s.map(|c| c as usize));
+        let total = spec.shape.iter().map(|n| n.div_ceil(edge)).product::<u64>();
         Ok(Self {
-            tile,
+            tiles: Tiles {
+                u,
+                grid: spec.shape,
+                edge,
+                halo,
+                cache: std::sync::Mutex::new(
+                    crate::trace::tiles::Lru::new(cap.min(total) as usize),
+                ),
+            },
             ball,
             origin: DVec3::from_array(spec.origin),
             spacing: spec.spacing,
         })
-    }
-
-    /// u = 1 - phi at `p` (voxel coordinates), if every corner of its cell has one.
-    fn u(&self, p: DVec3) -> Option<f64> {
-        self.tile.interpolate(p).ok().map(|(_, u)| u)
     }
 
     /// The world point with `(phi, theta, psi)`, or why there is none.
@@ -95,39 +186,52 @@ impl Inverse {
         let c = self.ball.center;
         let target = u;
         let start = c + self.ball.radius * d;
-        let u0 = self.u(start).ok_or_else(|| {
-            "the stop sphere is outside the solved region in this direction".to_owned()
-        })?;
+        let mut cur = Cursor {
+            tiles: &self.tiles,
+            tile: None,
+            error: None,
+        };
+        let Some(u0) = cur.u(start) else {
+            if let Some(e) = cur.error {
+                return Err(format!("reading u failed: {e}"));
+            }
+            return Err(
+                "the stop sphere is outside the solved region in this direction".to_owned(),
+            );
+        };
         let p = if target >= u0 {
             // Within the stop ball: on the ray from the center, where u falls from 1.
             let (mut lo, mut hi) = (0.0, self.ball.radius);
             for _ in 0..60 {
                 let mid = 0.5 * (lo + hi);
-                match self.u(c + mid * d) {
+                match cur.u(c + mid * d) {
                     Some(u) if u > target => lo = mid,
                     _ => hi = mid,
                 }
             }
             c + 0.5 * (lo + hi) * d
         } else {
-            self.uphill(start, u0, target)?
+            let r = Self::uphill(&mut cur, start, u0, target);
+            if let Some(e) = cur.error {
+                return Err(format!("reading u failed: {e}"));
+            }
+            r?
         };
         Ok(self.origin + self.spacing * p)
     }
 
     /// Follow the field backwards (up phi, down u) from `p` (u = `up`) to u = `target`.
-    fn uphill(&self, mut p: DVec3, mut up: f64, target: f64) -> InverseResult {
-        let back = |q: DVec3| -> Option<DVec3> { self.tile.direction(q).ok().map(|v| -v) };
+    fn uphill(cur: &mut Cursor<'_>, mut p: DVec3, mut up: f64, target: f64) -> InverseResult {
         let lost = || {
             "the streamline leaves the solid before phi is reached (a region the forward map does not reach)".to_owned()
         };
         for _ in 0..MAX_STEPS {
-            let k1 = back(p).ok_or_else(lost)?;
-            let k2 = back(p + 0.5 * STEP * k1).ok_or_else(lost)?;
-            let k3 = back(p + 0.5 * STEP * k2).ok_or_else(lost)?;
-            let k4 = back(p + STEP * k3).ok_or_else(lost)?;
+            let k1 = cur.back(p).ok_or_else(lost)?;
+            let k2 = cur.back(p + 0.5 * STEP * k1).ok_or_else(lost)?;
+            let k3 = cur.back(p + 0.5 * STEP * k2).ok_or_else(lost)?;
+            let k4 = cur.back(p + STEP * k3).ok_or_else(lost)?;
             let next = p + STEP / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
-            let un = self.u(next).ok_or_else(lost)?;
+            let un = cur.u(next).ok_or_else(lost)?;
             if un <= target {
                 let t = if up > un {
                     (up - target) / (up - un)
@@ -238,10 +342,21 @@ pub fn inverse_csv(
         .and_then(serde_json::Value::as_f64);
     let inv = Inverse::new(run, stop_radius, mem)?;
     progress.start("inverse", rows.len() as u64);
-    let points: Vec<InverseResult> = {
+    // In the order of their directions, so consecutive points climb through the same
+    // tiles; results go back to the rows' order.
+    let mut order: Vec<usize> = (0..rows.len()).collect();
+    order.sort_by(|&a, &b| {
+        let key = |r: &[f64; 3]| ((r[1] * 64.0).floor() as i64, r[2]);
+        let (ka, kb) = (key(&rows[a]), key(&rows[b]));
+        ka.0.cmp(&kb.0).then(ka.1.total_cmp(&kb.1)).then(a.cmp(&b))
+    });
+    let sorted: Vec<InverseResult> = {
         use rayon::prelude::*;
-        rows.par_iter()
-            .map(|r| {
+        order
+            .par_iter()
+            .with_min_len(64)
+            .map(|&i| {
+                let r = &rows[i];
                 let p = if by_u {
                     inv.point_u(r[0], r[1], r[2])
                 } else {
@@ -252,6 +367,10 @@ pub fn inverse_csv(
             })
             .collect()
     };
+    let mut points: Vec<InverseResult> = vec![Ok(DVec3::ZERO); rows.len()];
+    for (p, &i) in sorted.into_iter().zip(&order) {
+        points[i] = p;
+    }
     progress.finish();
     let mut out = crate::export::Staged::create(output)?;
     let mut failed = 0;

@@ -110,14 +110,14 @@ impl Tiling {
 }
 
 /// A small least-recently-used cache.
-struct Lru<V> {
+pub(crate) struct Lru<V> {
     cap: usize,
     clock: u64,
     map: HashMap<u64, (Arc<V>, u64)>,
 }
 
 impl<V> Lru<V> {
-    fn new(cap: usize) -> Self {
+    pub(crate) fn new(cap: usize) -> Self {
         Self {
             cap: cap.max(1),
             clock: 0,
@@ -125,7 +125,7 @@ impl<V> Lru<V> {
         }
     }
 
-    fn get(&mut self, k: u64) -> Option<Arc<V>> {
+    pub(crate) fn get(&mut self, k: u64) -> Option<Arc<V>> {
         self.clock += 1;
         let c = self.clock;
         self.map.get_mut(&k).map(|e| {
@@ -151,7 +151,7 @@ impl<V> Lru<V> {
         }
     }
 
-    fn put(&mut self, k: u64, v: Arc<V>) {
+    pub(crate) fn put(&mut self, k: u64, v: Arc<V>) {
         self.clock += 1;
         if !self.map.contains_key(&k) {
             self.make_room(1);
