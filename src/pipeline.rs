@@ -42,7 +42,7 @@ pub fn voxelize_new_run(
                 Value::Null
             };
             let format = match &shape {
-                Shape::Mesh(_) => input::extension(path).0,
+                Shape::Mesh(_) | Shape::Molecule(_) => input::extension(path).0,
                 Shape::Volume(_) => "label-volume".into(),
             };
             let name = path.display().to_string();

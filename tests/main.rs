@@ -5,6 +5,7 @@ mod common;
 mod interop;
 mod map;
 mod meshes;
+mod molecules;
 mod solve;
 mod trace;
 mod voxelize;

@@ -334,6 +334,7 @@ fn label_volume_input_keeps_its_voxels() {
             shape: [n; 3],
             dtype: harmap::input::RawDtype::U8,
         }),
+        ..Default::default()
     };
     let out = dir.path().join("v.harmap");
     let opts = VoxelizeOptions {
@@ -427,6 +428,7 @@ fn zarr_and_gzipped_raw_label_volumes_give_the_same_labels() {
             shape,
             dtype: harmap::input::RawDtype::F32,
         }),
+        ..Default::default()
     };
     let (o1, o2) = (dir.path().join("a.harmap"), dir.path().join("b.harmap"));
     let (_, r1) =
@@ -446,6 +448,7 @@ fn zarr_and_gzipped_raw_label_volumes_give_the_same_labels() {
             shape: [14, 18, 17],
             dtype: harmap::input::RawDtype::F32,
         }),
+        ..Default::default()
     };
     let e = voxelize_new_run(
         &Source::File(&gz, &bad),

@@ -4,8 +4,10 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use harmap::grid::MemBudget;
+use harmap::input::molecule::MoleculeOptions;
 use harmap::input::{InputOptions, RawDtype, RawSpec};
 use harmap::pipeline::{voxelize_new_run, Source};
+use harmap::voxelize::spheres::MolSurface;
 use harmap::voxelize::{labels::NAMES, Scratch, VoxelizeOptions};
 
 use super::progress::Bars;
@@ -14,8 +16,11 @@ use super::{Global, UsageError};
 /// Voxelize a shape into a new run directory: labels and the shape center.
 ///
 /// INPUT is a closed triangle surface (.obj, .stl, .ply), a TetGen mesh (.node/.ele),
-/// a label volume (a Zarr v3 array directory, or .raw with --raw-shape and --raw-dtype;
-/// anything > 0 is inside), any of them optionally .gz. The solid must be one piece of
+/// a molecule (.pdb, .pqr, .xyzr, .xyz; Bondi radii by element, PQR radii as given) or a
+/// point set (.csv of x,y,z with --radius), a label volume (a Zarr v3 array directory,
+/// or .raw with --raw-shape and --raw-dtype; anything > 0 is inside), any of them
+/// optionally .gz. Molecules become the solid --surface says (default: ses with a 1.4
+/// Angstrom probe); waters are left out, and other hetero groups unless --keep-hetatm. The solid must be one piece of
 /// genus 0: enclosed cavities are filled, and handles or several pieces are refused
 /// unless --allow-genus or --keep-largest says otherwise.
 ///
@@ -26,6 +31,7 @@ use super::{Global, UsageError};
 ///   harmap voxelize spot.obj -o spot.harmap --resolution 128
 ///   harmap voxelize armadillo.obj.gz -o arm.harmap --resolution 1024 --mem 256MiB
 ///   harmap voxelize seg.raw --raw-shape 200,256,256 --raw-dtype u8 --spacing 0.5 -o seg.harmap
+///   harmap voxelize 1crn.pdb -o 1crn.harmap --spacing 0.5 --surface ses --probe 1.4
 #[derive(clap::Args, Debug)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
@@ -86,6 +92,38 @@ pub struct VoxelizeArgs {
     /// Element type of a .raw label volume: u8, u16, i16, u32, i32, f32, f64.
     #[arg(long, value_name = "DTYPE")]
     pub raw_dtype: Option<RawDtype>,
+    /// Molecules: the solid, from the atoms' balls: vdw (their union), sas (grown by the
+    /// probe) or ses (solvent-excluded: what no probe ball in the solvent reaches).
+    #[arg(long, value_enum, default_value_t = SurfaceArg::Ses, help_heading = "Molecules and point sets")]
+    pub surface: SurfaceArg,
+    /// Molecules: probe radius of sas and ses, Angstrom.
+    #[arg(
+        long,
+        value_name = "A",
+        default_value_t = 1.4,
+        help_heading = "Molecules and point sets"
+    )]
+    pub probe: f64,
+    /// PDB: the model to read [default: the first].
+    #[arg(long, value_name = "N", help_heading = "Molecules and point sets")]
+    pub model: Option<u32>,
+    /// Keep hetero groups (ligands, ions) other than water.
+    #[arg(long, help_heading = "Molecules and point sets")]
+    pub keep_hetatm: bool,
+    /// Point sets (.csv of x,y,z, or any atom file): one radius for every point.
+    #[arg(long, value_name = "R", help_heading = "Molecules and point sets")]
+    pub radius: Option<f64>,
+}
+
+/// `--surface` values.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum SurfaceArg {
+    /// Union of van der Waals balls.
+    Vdw,
+    /// Solvent-accessible: balls grown by the probe.
+    Sas,
+    /// Solvent-excluded (molecular) surface.
+    Ses,
 }
 
 /// `--scratch` values.
@@ -150,8 +188,21 @@ impl VoxelizeArgs {
                     ScratchArg::Memory => Scratch::Memory,
                     ScratchArg::Disk => Scratch::Disk,
                 },
+                surface: match self.surface {
+                    SurfaceArg::Vdw => MolSurface::Vdw,
+                    SurfaceArg::Sas => MolSurface::Sas,
+                    SurfaceArg::Ses => MolSurface::Ses,
+                },
+                probe: self.probe,
             },
-            InputOptions { raw },
+            InputOptions {
+                raw,
+                molecule: MoleculeOptions {
+                    model: self.model,
+                    keep_hetatm: self.keep_hetatm,
+                    radius: self.radius,
+                },
+            },
         ))
     }
 }

@@ -6,6 +6,7 @@
 
 mod error;
 mod mesh;
+pub mod molecule;
 mod obj;
 mod ply;
 mod source;
@@ -28,6 +29,8 @@ pub enum Shape {
     Mesh(TriMesh),
     /// A label volume: "anything > 0 is inside", one voxel per array element.
     Volume(LabelVolume),
+    /// Balls: the atoms of a molecule, or points with a radius.
+    Molecule(molecule::Molecule),
 }
 
 /// How to read inputs whose file does not describe itself.
@@ -35,6 +38,8 @@ pub enum Shape {
 pub struct InputOptions {
     /// Shape and data type of a `.raw` volume.
     pub raw: Option<RawSpec>,
+    /// How atoms and points are read.
+    pub molecule: molecule::MoleculeOptions,
 }
 
 /// Read the shape at `path`, choosing the reader by extension.
@@ -58,6 +63,9 @@ pub fn load(path: &Path, options: &InputOptions) -> Result<Shape, InputError> {
                 )
             })?;
             LabelVolume::open_raw(path, &spec).map(Shape::Volume)
+        }
+        e if molecule::is_molecule(e) || options.molecule.radius.is_some() => {
+            molecule::read(path, e, &read_bytes(path)?, &options.molecule).map(Shape::Molecule)
         }
         _ => load_mesh(path).map(Shape::Mesh),
     }

@@ -17,6 +17,7 @@ mod euler;
 mod from_volume;
 mod grid_fit;
 mod scanline;
+pub mod spheres;
 mod standard;
 
 use std::time::Instant;
@@ -78,6 +79,16 @@ pub struct VoxelizeOptions {
     pub unit: Option<String>,
     /// Where the intermediate solid grid lives.
     pub scratch: Scratch,
+    /// Molecules: which solid (vdW, SAS or SES).
+    #[serde(default)]
+    pub surface: spheres::MolSurface,
+    /// Molecules: the probe radius of SAS and SES (Angstrom).
+    #[serde(default = "default_probe")]
+    pub probe: f64,
+}
+
+fn default_probe() -> f64 {
+    1.4
 }
 
 /// Where intermediate grids live.
@@ -120,6 +131,8 @@ impl Default for VoxelizeOptions {
             mem: MemBudget::default(),
             unit: None,
             scratch: Scratch::Auto,
+            surface: spheres::MolSurface::Ses,
+            probe: 1.4,
         }
     }
 }
@@ -195,7 +208,7 @@ pub fn voxelize(
         ))
         .into());
     }
-    let (spec, rule, shape_bytes) = match shape {
+    let (mut spec, rule, shape_bytes) = match shape {
         Shape::Mesh(mesh) => {
             let topo = mesh.topology();
             if !topo.is_closed() {
@@ -243,7 +256,46 @@ pub fn voxelize(
             (fit_bbox(lo, hi, opts)?, Some(rule), bytes)
         }
         Shape::Volume(v) => (fit_volume(v.shape(), opts)?, None, 0),
+        Shape::Molecule(m) => {
+            if !(opts.probe.is_finite() && opts.probe > 0.0) {
+                return Err(VoxelizeError::Options(format!(
+                    "--probe {}: give a positive radius",
+                    opts.probe
+                ))
+                .into());
+            }
+            let grow = if opts.surface == spheres::MolSurface::Vdw {
+                0.0
+            } else {
+                opts.probe
+            };
+            let mut lo = Vec3::splat(f64::INFINITY);
+            let mut hi = Vec3::splat(f64::NEG_INFINITY);
+            for a in &m.atoms {
+                lo = lo.min(a.pos - Vec3::splat(a.radius + grow));
+                hi = hi.max(a.pos + Vec3::splat(a.radius + grow));
+            }
+            (fit_bbox(lo, hi, opts)?, None, m.atoms.len() as u64 * 200)
+        }
     };
+    if let Shape::Molecule(m) = shape {
+        if spec.unit.is_none() && m.format != "points" {
+            spec.unit = Some("angstrom".into());
+        }
+        warnings.extend(m.warnings.iter().cloned());
+        if !m.left_out.is_empty() {
+            warnings.push(format!(
+                "left out (hetero groups; --keep-hetatm keeps all but water): {}",
+                crate::input::molecule::summary(&m.left_out)
+            ));
+        }
+        if !m.hetero_kept.is_empty() {
+            warnings.push(format!(
+                "hetero groups kept: {}",
+                crate::input::molecule::summary(&m.hetero_kept)
+            ));
+        }
+    }
     let threads = rayon::current_num_threads();
     let c = opts.chunk;
     let plane = spec.shape[1] * spec.shape[2];
@@ -257,7 +309,7 @@ pub fn voxelize(
     let input_chunk = match shape {
         // A block may overlap up to 8 chunks of the input array, each decoded whole.
         Shape::Volume(v) => 8 * v.chunk_bytes(),
-        Shape::Mesh(_) => 0,
+        Shape::Mesh(_) | Shape::Molecule(_) => 0,
     };
     let what = |s: &str| {
         if in_memory {
@@ -320,6 +372,9 @@ pub fn voxelize(
         }
         (Shape::Volume(v), _) => {
             from_volume::volume_solid(v, opts.padding, solid, w_solid, progress)?;
+        }
+        (Shape::Molecule(m), _) => {
+            spheres::molecule_solid(m, opts.surface, opts.probe, solid, w_solid, progress)?;
         }
         (Shape::Mesh(_), None) => unreachable!("meshes always get a rule"),
     }
