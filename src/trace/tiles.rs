@@ -302,12 +302,11 @@ pub fn trace_tiled(
                 let c = [l.p.z, l.p.y, l.p.x].map(|x| (x.max(0.0) as u64) >> 2);
                 ((c[0] * 4096 + c[1]) * 4096 + c[2], l.id)
             });
-            while v.len() > 512 {
-                let rest = v.split_off(512);
-                work.push((k, t.clone(), v));
-                v = rest;
+            // Slices copied out whole: split_off would leave each slice holding the
+            // capacity of everything after it (quadratic memory for a crowded tile).
+            for slice in v.chunks(512) {
+                work.push((k, t.clone(), slice.to_vec()));
             }
-            work.push((k, t, v));
         }
         let results: Vec<(Vec<Done>, Vec<Moved>)> = work
             .into_par_iter()
