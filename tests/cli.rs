@@ -460,3 +460,63 @@ fn a_killed_run_resumes_without_voxelizing_again() {
         .unwrap();
     assert_eq!(labels_before, labels_after, "labels were written again");
 }
+
+#[test]
+fn handles_are_located_and_closing_plugs_them() {
+    let d = tempfile::tempdir().unwrap();
+    // A fat ring whose hole (radius 0.15) is about 3 voxels across at resolution 40.
+    let t = d.path().join("ring.obj");
+    write_obj(&t, &torus(1.0, 0.85, 64, 32));
+    let t = t.to_str().unwrap();
+    refused(
+        Path::new(t),
+        &["--resolution", "40"],
+        &["genus 1", "plugs 1 of them, at voxel(s) [", "--close 3"],
+    );
+    // Going on anyway records where the handle is: in the hole, on the ring's axis.
+    let run = d.path().join("open.harmap");
+    let o = harmap(&[
+        "voxelize",
+        t,
+        "-o",
+        run.to_str().unwrap(),
+        "--resolution",
+        "40",
+        "--allow-genus",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v = info_json(&run);
+    let h = &v["summary"]["voxelize"]["handles"];
+    assert_eq!(h.as_array().map(Vec::len), Some(1), "{v}");
+    assert_eq!(h[0]["closes"], 1);
+    let p: Vec<f64> = (0..3)
+        .map(|a| h[0]["position"][a].as_f64().unwrap())
+        .collect();
+    assert!(
+        p[0].hypot(p[1]) < 0.5 && p[2].abs() < 0.85,
+        "handle at {p:?}"
+    );
+    // --close 3 plugs it: genus 0.
+    let run = d.path().join("closed.harmap");
+    let o = harmap(&[
+        "voxelize",
+        t,
+        "-o",
+        run.to_str().unwrap(),
+        "--resolution",
+        "40",
+        "--close",
+        "3",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("closing by 3 voxels added"));
+    let v = info_json(&run);
+    assert_eq!(v["summary"]["voxelize"]["genus"], 0);
+    assert!(v["summary"]["voxelize"]["closing_voxels"].as_u64().unwrap() > 0);
+}
+
+fn info_json(run: &Path) -> serde_json::Value {
+    let o = harmap(&["info", run.to_str().unwrap(), "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    serde_json::from_slice(&o.stdout).unwrap()
+}

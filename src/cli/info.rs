@@ -42,6 +42,8 @@ fn summary(attrs: &Value) -> Value {
             "genus": v["genus"],
             "components": v["components"],
             "cavities_filled": v["cavities_filled"],
+            "closing_voxels": v.get("closing_voxels").cloned().unwrap_or(json!(0)),
+            "handles": v.get("handles").cloned().unwrap_or(json!([])),
             "center_depth_voxels": v["center_depth"],
             "inside_rule": v["inside_rule"],
         });
@@ -141,6 +143,25 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
             "topology: {} piece(s), genus {}, Euler characteristic {}, {} cavities filled ({} voxels), inside by {}",
             v["components"], v["genus"], v["euler_characteristic"], v["cavities_filled"], v["cavity_voxels"], v["inside_rule"].as_str().unwrap_or("?")
         )?;
+        if let Some(n) = v
+            .get("closing_voxels")
+            .and_then(Value::as_u64)
+            .filter(|&n| n > 0)
+        {
+            writeln!(out, "closing: {n} voxels added")?;
+        }
+        if let Some(h) = v
+            .get("handles")
+            .and_then(Value::as_array)
+            .filter(|h| !h.is_empty())
+        {
+            let at: Vec<String> = h
+                .iter()
+                .take(5)
+                .map(|h| format!("{} at voxel {}", h["closes"], h["voxel"]))
+                .collect();
+            writeln!(out, "handles a closing would plug: {}", at.join(", "))?;
+        }
     }
     if let Some(stages) = attrs.get("stages").and_then(Value::as_object) {
         for (name, st) in stages {

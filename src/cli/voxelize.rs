@@ -72,6 +72,11 @@ pub struct VoxelizeArgs {
     /// Keep only the largest piece of the solid.
     #[arg(long)]
     pub keep_largest: bool,
+    /// Close the solid by a ball of this radius (morphological closing) before the
+    /// topology check: plugs tunnels and gaps narrower than about twice it. When the
+    /// genus is above 0, harmap reports where a closing would plug handles.
+    #[arg(long, value_name = "VOXELS", default_value_t = 0)]
+    pub close: u32,
     /// Unit of the input coordinates, written to the OME-Zarr metadata (e.g. millimeter,
     /// micrometer, angstrom).
     #[arg(long)]
@@ -194,6 +199,7 @@ impl VoxelizeArgs {
                     SurfaceArg::Ses => MolSurface::Ses,
                 },
                 probe: self.probe,
+                close: self.close,
             },
             InputOptions {
                 raw,
@@ -234,6 +240,12 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         r.center_depth,
         r.genus
     ));
+    if r.closing_voxels > 0 {
+        g.say(&format!(
+            "closing by {} voxels added {} voxels",
+            opts.close, r.closing_voxels
+        ));
+    }
     if g.verbosity > 1 {
         for (n, c) in NAMES.iter().zip(r.counts) {
             g.say(&format!("  {n:>9}: {c}"));

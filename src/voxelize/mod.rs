@@ -11,6 +11,7 @@
 
 mod center;
 mod classify;
+pub mod closing;
 mod components;
 mod error;
 mod euler;
@@ -85,6 +86,9 @@ pub struct VoxelizeOptions {
     /// Molecules: the probe radius of SAS and SES (Angstrom).
     #[serde(default = "default_probe")]
     pub probe: f64,
+    /// Close the solid by a ball of this many voxels before the topology check (0: no).
+    #[serde(default)]
+    pub close: u32,
 }
 
 fn default_probe() -> f64 {
@@ -133,6 +137,7 @@ impl Default for VoxelizeOptions {
             scratch: Scratch::Auto,
             surface: spheres::MolSurface::Ses,
             probe: 1.4,
+            close: 0,
         }
     }
 }
@@ -166,11 +171,21 @@ pub struct VoxelizeReport {
     pub pieces_removed: u64,
     /// Voxels removed by `keep_largest`.
     pub removed_voxels: u64,
+    /// Voxels added by `--close`.
+    #[serde(default)]
+    pub closing_voxels: u64,
+    /// Where handles are, when the genus is above 0: places where a closing (by
+    /// [`HANDLE_PROBE`] voxels, or twice `--close`) would plug tunnels.
+    #[serde(default)]
+    pub handles: Vec<closing::Handle>,
     /// Warnings given.
     pub warnings: Vec<String>,
     /// Seconds per pass.
     pub timings: Vec<(String, f64)>,
 }
+
+/// Radius (voxels) of the closing that locates handles when `--close` is not given.
+pub const HANDLE_PROBE: u32 = 3;
 
 /// Bytes a worker of the label pass holds (haloed block, distances, output, codec).
 pub(crate) fn label_worker_bytes(chunk: u64) -> u64 {
@@ -380,6 +395,35 @@ pub fn voxelize(
     }
     lap("solid", &mut t);
 
+    // 1b. Closing (before the cavities: a closing can shut the mouth of a pocket).
+    let closing_scratch = |name: &str| -> Result<Box<dyn BlockStore<u8>>, crate::Error> {
+        let mem = opts.scratch.in_memory(spec.num_voxels(), opts.mem, held);
+        if mem {
+            Ok(Box::new(MemStore::<u8>::new(spec.clone(), 0)))
+        } else {
+            Ok(Box::new(MmapStore::<u8>::create(
+                &scratch_dir.join(name),
+                spec.clone(),
+            )?))
+        }
+    };
+    let closing_workers = |r: u32| {
+        opts.mem.workers(
+            &what(&format!("closing one block by {r} voxels")),
+            held,
+            closing::worker_bytes(c, r),
+            threads,
+        )
+    };
+    let mut closing_voxels = 0;
+    if opts.close > 0 {
+        let w = closing_workers(opts.close)?;
+        let out = closing_scratch("closed.u8")?;
+        closing_voxels = closing::close(solid, &*out, opts.close, w, progress)?;
+        closing::apply(solid, &*out, w)?;
+        lap("closing", &mut t);
+    }
+
     // 2. Fill enclosed cavities: background components that do not reach the grid faces.
     let bg = components::find(
         solid,
@@ -450,6 +494,35 @@ pub fn voxelize(
     let chi = euler::euler_characteristic(solid, w_ccl)?;
     let genus = ncomp as i64 - chi;
     lap("topology", &mut t);
+    // Where the handles are: the pieces a closing adds that plug tunnels.
+    let mut handles = Vec::new();
+    let probe_r = if opts.close > 0 {
+        2 * opts.close
+    } else {
+        HANDLE_PROBE
+    };
+    if genus > 0 {
+        let w = closing_workers(probe_r)?;
+        let out = closing_scratch("probe.u8")?;
+        closing::close(solid, &*out, probe_r, w, progress)?;
+        handles = closing::handles(&*out, 64, w_ccl, ccl_limit, progress)?;
+        lap("handles", &mut t);
+    }
+    let closable: i64 = handles.iter().map(|h| h.closes).sum();
+    let where_ = if handles.is_empty() {
+        format!("a closing by {probe_r} voxels plugs none of them (the tunnels are wider)")
+    } else {
+        format!(
+            "a closing by {probe_r} voxels plugs {closable} of them, at voxel(s) {}{} (pass --close {probe_r}, or for molecules a larger --probe)",
+            handles
+                .iter()
+                .take(5)
+                .map(|h| format!("[{}, {}, {}]", h.voxel[0], h.voxel[1], h.voxel[2]))
+                .collect::<Vec<_>>()
+                .join(", "),
+            if handles.len() > 5 { ", ..." } else { "" }
+        )
+    };
     if (ncomp > 1 || genus != 0) && !opts.allow_genus {
         let mut sizes = pieces.sizes.clone();
         sizes.sort_unstable_by(|a, b| b.cmp(a));
@@ -465,7 +538,7 @@ pub fn voxelize(
                 if ncomp > 5 { ", ..." } else { "" }
             )
         } else {
-            format!("one piece of genus {genus} ({genus} tunnel(s) or handle(s); Euler characteristic {chi})")
+            format!("one piece of genus {genus} ({genus} tunnel(s) or handle(s); Euler characteristic {chi}); {where_}")
         };
         let advice = if ncomp > 1 {
             "use --keep-largest to keep the largest piece, a coarser --resolution to join them, or --allow-genus to go on anyway"
@@ -481,6 +554,9 @@ pub fn voxelize(
         warnings.push(format!(
             "the solid has {ncomp} piece(s) and genus {genus}; going on because of --allow-genus"
         ));
+        if genus > 0 {
+            warnings.push(format!("handles: {where_}"));
+        }
     }
     drop(pieces);
 
@@ -535,6 +611,8 @@ pub fn voxelize(
         cavity_voxels,
         pieces_removed,
         removed_voxels,
+        closing_voxels,
+        handles,
         warnings,
         timings,
     })

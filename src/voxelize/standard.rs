@@ -124,6 +124,8 @@ pub fn standard_ball(
         cavity_voxels: 0,
         pieces_removed: 0,
         removed_voxels: 0,
+        closing_voxels: 0,
+        handles: Vec::new(),
         warnings: Vec::new(),
         timings: Vec::new(),
     })
