@@ -86,9 +86,7 @@ fn voxelize_and_info_work() {
         "1",
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let o = harmap(&["info", out.to_str().unwrap(), "--json"]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let v = info_json(&out);
     assert_eq!(
         v["harmap"]["grid"]["shape"],
         serde_json::json!([28, 28, 28])

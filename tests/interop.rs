@@ -68,41 +68,27 @@ fn check_with_python(python: &str, script: &str, args: &[&Path]) {
 fn run_directory_opens_in_zarr_python_and_ome_zarr() {
     let Some(python) = python() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let obj = dir.path().join("cube.obj");
-    std::fs::write(&obj, CUBE_OBJ).unwrap();
-    let run = dir.path().join("cube.harmap");
-    let o = Command::new(env!("CARGO_BIN_EXE_harmap"))
-        .args([
-            "voxelize",
-            obj.to_str().unwrap(),
-            "-o",
-            run.to_str().unwrap(),
-            "--resolution",
-            "24",
-            "--progress",
-            "never",
-        ])
-        .output()
-        .expect("the harmap binary runs");
-    assert!(
-        o.status.success(),
-        "harmap voxelize failed:\n{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    for args in [vec!["solve"], vec!["trace", "--sample", "500"]] {
-        let o = Command::new(env!("CARGO_BIN_EXE_harmap"))
-            .args(&args)
-            .arg(&run)
-            .args(["--progress", "never"])
-            .output()
-            .expect("the harmap binary runs");
-        assert!(
-            o.status.success(),
-            "harmap {args:?} failed:\n{}",
-            String::from_utf8_lossy(&o.stderr)
-        );
-    }
+    let run = traced_cube(dir.path(), "24", "500");
     check_with_python(&python, "check_run.py", &[&run]);
+}
+
+/// The cube at `resolution`, voxelized, solved and traced from `sample` seeds in `dir`.
+fn traced_cube(dir: &std::path::Path, resolution: &str, sample: &str) -> std::path::PathBuf {
+    let obj = dir.join("cube.obj");
+    std::fs::write(&obj, CUBE_OBJ).unwrap();
+    let run = dir.join("cube.harmap");
+    let r = run.to_str().unwrap();
+    harmap(&[
+        "voxelize",
+        obj.to_str().unwrap(),
+        "-o",
+        r,
+        "--resolution",
+        resolution,
+    ]);
+    harmap(&["solve", r]);
+    harmap(&["trace", r, "--sample", sample]);
+    run
 }
 
 /// Run the harmap binary; panics with its stderr when it fails.
@@ -123,20 +109,8 @@ fn harmap(args: &[&str]) {
 fn exports_open_in_nibabel_vtk_griddata_and_ome_zarr() {
     let Some(python) = python() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let obj = dir.path().join("cube.obj");
-    std::fs::write(&obj, CUBE_OBJ).unwrap();
-    let run = dir.path().join("cube.harmap");
+    let run = traced_cube(dir.path(), "20", "200");
     let r = run.to_str().unwrap();
-    harmap(&[
-        "voxelize",
-        obj.to_str().unwrap(),
-        "-o",
-        r,
-        "--resolution",
-        "20",
-    ]);
-    harmap(&["solve", r]);
-    harmap(&["trace", r, "--sample", "200"]);
     harmap(&["map", r]);
     let out = dir.path().join("out");
     std::fs::create_dir(&out).unwrap();

@@ -3,7 +3,7 @@
 //! not depend on threads or the budget; errors.
 
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
 use glam::DVec3;
@@ -15,29 +15,7 @@ use harmap::run::RunDir;
 use harmap::solve::{solve, SolveOptions};
 use harmap::voxelize::StandardBall;
 
-fn solved_ball(dir: &Path, n: u64, chunk: u64) -> PathBuf {
-    let out = dir.join(format!("ball{n}-{chunk}.harmap"));
-    let p = StandardBall {
-        n,
-        sink_radius: 2.0,
-        chunk,
-        mem: MemBudget::default(),
-    };
-    standard_ball_run(&p, &out, true, &Silent).unwrap();
-    let opts = SolveOptions {
-        rtol: 1e-8,
-        checkpoint_every: 0.0,
-        ..SolveOptions::default()
-    };
-    solve(
-        &RunDir::open(&out).unwrap(),
-        &opts,
-        &AtomicBool::new(false),
-        &Silent,
-    )
-    .unwrap();
-    out
-}
+use crate::common::solved_ball;
 
 fn run_map(run: &Path, method: MapMethod, mem: MemBudget) -> MapReport {
     let opts = MapOptions {

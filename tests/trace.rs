@@ -6,32 +6,12 @@ use std::sync::atomic::AtomicBool;
 
 use glam::DVec3;
 use harmap::grid::MemBudget;
-use harmap::pipeline::standard_ball_run;
 use harmap::progress::Silent;
 use harmap::run::RunDir;
 use harmap::solve::{solve, SolveOptions};
 use harmap::trace::{read_seeds, trace, SeedKind, SeedTable, TraceOptions, TraceReport};
-use harmap::voxelize::StandardBall;
 
-/// The standard ball at N, solved to rtol 1e-8.
-fn solved_ball(dir: &Path, n: u64, chunk: u64) -> PathBuf {
-    let out = dir.join(format!("ball{n}-{chunk}.harmap"));
-    let p = StandardBall {
-        n,
-        sink_radius: 2.0,
-        chunk,
-        mem: MemBudget::default(),
-    };
-    standard_ball_run(&p, &out, true, &Silent).unwrap();
-    let run = RunDir::open(&out).unwrap();
-    let opts = SolveOptions {
-        rtol: 1e-8,
-        checkpoint_every: 0.0,
-        ..SolveOptions::default()
-    };
-    solve(&run, &opts, &AtomicBool::new(false), &Silent).unwrap();
-    out
-}
+use crate::common::solved_ball;
 
 fn run_trace(run: &Path, opts: &TraceOptions) -> (TraceReport, SeedTable) {
     let r = RunDir::open(run).unwrap();

@@ -178,6 +178,15 @@ impl Reader<'_> {
             Err(_) => Err(self.err(line, format!("{what} is `{t}`, not a number"))),
         }
     }
+
+    /// The position whose x, y and z are the three fields of `f`.
+    fn position(&self, line: usize, f: &[&str]) -> Result<DVec3, InputError> {
+        Ok(DVec3::new(
+            self.number(line, "x", f[0])?,
+            self.number(line, "y", f[1])?,
+            self.number(line, "z", f[2])?,
+        ))
+    }
 }
 
 /// Read the molecule or point set at `path` (`ext` its format, e.g. from
@@ -331,6 +340,7 @@ fn read_pdb(r: &Reader<'_>, text: &str, o: &MoleculeOptions) -> Result<Molecule,
         let x = r.number(n, "x (columns 31-38)", &line[30..38])?;
         let y = r.number(n, "y (columns 39-46)", &line[38..46])?;
         let z = r.number(n, "z (columns 47-54)", &line[46..54])?;
+        let pos = DVec3::new(x, y, z);
         // Alternate locations: the first met for each atom.
         if alt != " "
             && !seen_atoms.insert((
@@ -352,7 +362,7 @@ fn read_pdb(r: &Reader<'_>, text: &str, o: &MoleculeOptions) -> Result<Molecule,
             .map_or_else(|| element_from_name(name, het), capitalize);
         let radius = table_radius(&element, &mut missing);
         m.atoms.push(Atom {
-            pos: DVec3::new(x, y, z),
+            pos,
             radius,
             element,
             residue: res,
@@ -397,9 +407,7 @@ fn read_pqr(r: &Reader<'_>, text: &str, o: &MoleculeOptions) -> Result<Molecule,
             ));
         }
         let k = f.len();
-        let x = r.number(n, "x", f[k - 5])?;
-        let y = r.number(n, "y", f[k - 4])?;
-        let z = r.number(n, "z", f[k - 3])?;
+        let pos = r.position(n, &f[k - 5..k - 2])?;
         r.number(n, "charge", f[k - 2])?;
         let radius = r.number(n, "radius", f[k - 1])?;
         if radius < 0.0 {
@@ -417,7 +425,7 @@ fn read_pqr(r: &Reader<'_>, text: &str, o: &MoleculeOptions) -> Result<Molecule,
             table_radius(&element, &mut missing)
         };
         m.atoms.push(Atom {
-            pos: DVec3::new(x, y, z),
+            pos,
             radius,
             element,
             residue: res,
@@ -452,11 +460,7 @@ fn read_xyzr(r: &Reader<'_>, text: &str) -> Result<Molecule, InputError> {
             return Err(r.err(n, format!("radius {radius} is not positive")));
         }
         m.atoms.push(Atom {
-            pos: DVec3::new(
-                r.number(n, "x", f[0])?,
-                r.number(n, "y", f[1])?,
-                r.number(n, "z", f[2])?,
-            ),
+            pos: r.position(n, &f[0..3])?,
             radius,
             element: String::new(),
             residue: String::new(),
@@ -498,11 +502,7 @@ fn read_xyz(r: &Reader<'_>, text: &str) -> Result<Molecule, InputError> {
         let element = capitalize(f[0].trim_matches(|c: char| !c.is_ascii_alphabetic()));
         let radius = table_radius(&element, &mut missing);
         m.atoms.push(Atom {
-            pos: DVec3::new(
-                r.number(n, "x", f[1])?,
-                r.number(n, "y", f[2])?,
-                r.number(n, "z", f[3])?,
-            ),
+            pos: r.position(n, &f[1..4])?,
             radius,
             element,
             residue: String::new(),
@@ -538,11 +538,7 @@ fn read_points(r: &Reader<'_>, text: &str) -> Result<Molecule, InputError> {
             return Err(r.err(n, format!("{} columns; a point needs x,y,z", f.len())));
         }
         m.atoms.push(Atom {
-            pos: DVec3::new(
-                r.number(n, "x", f[0])?,
-                r.number(n, "y", f[1])?,
-                r.number(n, "z", f[2])?,
-            ),
+            pos: r.position(n, &f[0..3])?,
             radius: 0.0,
             element: String::new(),
             residue: String::new(),

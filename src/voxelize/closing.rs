@@ -31,35 +31,30 @@ pub fn edt_sq(feature: &[bool], shape: [usize; 3]) -> Vec<u32> {
     let n = nx.max(ny).max(nz);
     let (mut f, mut d) = (vec![0.0; n], vec![0.0; n]);
     let (mut v, mut z) = (vec![0usize; n], vec![0.0; n + 1]);
-    let mut line = |vals: &mut dyn FnMut(usize) -> *mut f64, len: usize| {
-        for (q, fq) in f.iter_mut().enumerate().take(len) {
-            // SAFETY: `vals(q)` points into `g` (see the callers), valid for the call.
-            *fq = unsafe { *vals(q) };
+    // One line of `len` values from `start`, `stride` apart: gathered, transformed,
+    // scattered back.
+    let mut line = |g: &mut [f64], start: usize, stride: usize, len: usize| {
+        for (q, fq) in f[..len].iter_mut().enumerate() {
+            *fq = g[start + q * stride];
         }
         dt1d(&f[..len], &mut d[..len], &mut v, &mut z);
-        for (q, dq) in d.iter().enumerate().take(len) {
-            // SAFETY: as above.
-            unsafe { *vals(q) = *dq };
+        for (q, dq) in d[..len].iter().enumerate() {
+            g[start + q * stride] = *dq;
         }
     };
-    let p = g.as_mut_ptr();
     for zz in 0..nz {
         for y in 0..ny {
-            let base = (zz * ny + y) * nx;
-            // SAFETY (all three passes): every index is below nz * ny * nx = g.len().
-            line(&mut |q| unsafe { p.add(base + q) }, nx);
+            line(&mut g, (zz * ny + y) * nx, 1, nx);
         }
     }
     for zz in 0..nz {
         for x in 0..nx {
-            let base = zz * ny * nx + x;
-            line(&mut |q| unsafe { p.add(base + q * nx) }, ny);
+            line(&mut g, zz * ny * nx + x, nx, ny);
         }
     }
     for y in 0..ny {
         for x in 0..nx {
-            let base = y * nx + x;
-            line(&mut |q| unsafe { p.add(base + q * nx * ny) }, nz);
+            line(&mut g, y * nx + x, nx * ny, nz);
         }
     }
     g.iter()
@@ -297,23 +292,7 @@ fn box_euler(d: &[u8], shape: [usize; 3]) -> i64 {
             i64::from(d[(z * ny + y) * nx + x] == 1)
         }
     };
-    let mut chi = 0;
-    for z in 0..nz {
-        for y in 0..ny {
-            for x in 0..nx {
-                if at(z, y, x) == 0 {
-                    continue;
-                }
-                let (ax, ay, az) = (at(z, y, x + 1), at(z, y + 1, x), at(z + 1, y, x));
-                let sxy = ax * ay * at(z, y + 1, x + 1);
-                let sxz = ax * az * at(z + 1, y, x + 1);
-                let syz = ay * az * at(z + 1, y + 1, x);
-                let cube = sxy * sxz * syz * at(z + 1, y + 1, x + 1);
-                chi += 1 - (ax + ay + az) + (sxy + sxz + syz) - cube;
-            }
-        }
-    }
-    chi
+    super::euler::cells_chi(shape, at)
 }
 
 /// Copy the closed solid back: every [`ADDED`] voxel of `out` becomes solid in `solid`.

@@ -24,25 +24,32 @@ pub fn euler_characteristic(
         let [_, ry, rx] = region.shape;
         let d = &region.data;
         let at = |z: usize, y: usize, x: usize| i64::from(d[(z * ry + y) * rx + x] == 1);
-        let mut chi = 0i64;
-        for z in 0..s[0] {
-            for y in 0..s[1] {
-                for x in 0..s[2] {
-                    if at(z, y, x) == 0 {
-                        continue;
-                    }
-                    let (ax, ay, az) = (at(z, y, x + 1), at(z, y + 1, x), at(z + 1, y, x));
-                    let sxy = ax * ay * at(z, y + 1, x + 1);
-                    let sxz = ax * az * at(z + 1, y, x + 1);
-                    let syz = ay * az * at(z + 1, y + 1, x);
-                    let cube = sxy * sxz * syz * at(z + 1, y + 1, x + 1);
-                    chi += 1 - (ax + ay + az) + (sxy + sxz + syz) - cube;
-                }
-            }
-        }
-        Ok(chi)
+        Ok(cells_chi(s, at))
     })?;
     Ok(parts.iter().sum())
+}
+
+/// V - E + F - C of the cells whose lowest corner lies in `[0, s)`, where `at(z, y, x)`
+/// is 1 for a solid voxel and 0 otherwise (it is asked one voxel past `s` on the high
+/// sides).
+pub(super) fn cells_chi(s: [usize; 3], at: impl Fn(usize, usize, usize) -> i64) -> i64 {
+    let mut chi = 0i64;
+    for z in 0..s[0] {
+        for y in 0..s[1] {
+            for x in 0..s[2] {
+                if at(z, y, x) == 0 {
+                    continue;
+                }
+                let (ax, ay, az) = (at(z, y, x + 1), at(z, y + 1, x), at(z + 1, y, x));
+                let sxy = ax * ay * at(z, y + 1, x + 1);
+                let sxz = ax * az * at(z + 1, y, x + 1);
+                let syz = ay * az * at(z + 1, y + 1, x);
+                let cube = sxy * sxz * syz * at(z + 1, y + 1, x + 1);
+                chi += 1 - (ax + ay + az) + (sxy + sxz + syz) - cube;
+            }
+        }
+    }
+    chi
 }
 
 #[cfg(test)]

@@ -372,7 +372,7 @@ pub fn voxelize(
     }
 
     let scratch_dir = run.root().join(".scratch");
-    let solid = scratch_grid(&scratch_dir, &spec, in_memory)?;
+    let solid = scratch_grid(&scratch_dir, &spec, in_memory, "solid.u8")?;
     let solid = &*solid;
 
     // 1. Solid occupancy.
@@ -396,29 +396,21 @@ pub fn voxelize(
     lap("solid", &mut t);
 
     // 1b. Closing (before the cavities: a closing can shut the mouth of a pocket).
-    let closing_scratch = |name: &str| -> Result<Box<dyn BlockStore<u8>>, crate::Error> {
+    // A second grid for a closing, and the workers that fit beside both grids.
+    let closing_grid = |name: &str, r: u32| -> Result<_, crate::Error> {
         let mem = opts.scratch.in_memory(spec.num_voxels(), opts.mem, held);
-        if mem {
-            Ok(Box::new(MemStore::<u8>::new(spec.clone(), 0)))
-        } else {
-            Ok(Box::new(MmapStore::<u8>::create(
-                &scratch_dir.join(name),
-                spec.clone(),
-            )?))
-        }
-    };
-    let closing_workers = |r: u32| {
-        opts.mem.workers(
+        let grid = scratch_grid(&scratch_dir, &spec, mem, name)?;
+        let workers = opts.mem.workers(
             &what(&format!("closing one block by {r} voxels")),
-            held,
+            held + if mem { spec.num_voxels() } else { 0 },
             closing::worker_bytes(c, r),
             threads,
-        )
+        )?;
+        Ok((grid, workers))
     };
     let mut closing_voxels = 0;
     if opts.close > 0 {
-        let w = closing_workers(opts.close)?;
-        let out = closing_scratch("closed.u8")?;
+        let (out, w) = closing_grid("closed.u8", opts.close)?;
         closing_voxels = closing::close(solid, &*out, opts.close, w, progress)?;
         closing::apply(solid, &*out, w)?;
         lap("closing", &mut t);
@@ -502,8 +494,7 @@ pub fn voxelize(
         HANDLE_PROBE
     };
     if genus > 0 {
-        let w = closing_workers(probe_r)?;
-        let out = closing_scratch("probe.u8")?;
+        let (out, w) = closing_grid("probe.u8", probe_r)?;
         closing::close(solid, &*out, probe_r, w, progress)?;
         handles = closing::handles(&*out, 64, w_ccl, ccl_limit, progress)?;
         lap("handles", &mut t);
@@ -618,12 +609,13 @@ pub fn voxelize(
     })
 }
 
-/// The intermediate solid grid: in memory, or a memory-mapped file in `dir` (which is
-/// created either way).
+/// An intermediate u8 grid: in memory, or the memory-mapped file `name` in `dir` (which
+/// is created either way).
 pub(crate) fn scratch_grid(
     dir: &std::path::Path,
     spec: &GridSpec,
     in_memory: bool,
+    name: &str,
 ) -> Result<Box<dyn BlockStore<u8>>, crate::Error> {
     // The directory also holds the distance transform's slices, so make it either way.
     std::fs::create_dir_all(dir).map_err(|e| crate::grid::GridError::Io {
@@ -634,7 +626,7 @@ pub(crate) fn scratch_grid(
         return Ok(Box::new(MemStore::<u8>::new(spec.clone(), 0)));
     }
     Ok(Box::new(MmapStore::<u8>::create(
-        &dir.join("solid.u8"),
+        &dir.join(name),
         spec.clone(),
     )?))
 }

@@ -78,7 +78,7 @@ pub fn standard_ball(
         threads,
     )?;
     let scratch = run.root().join(".scratch");
-    let solid = super::scratch_grid(&scratch, &spec, in_memory)?;
+    let solid = super::scratch_grid(&scratch, &spec, in_memory, "solid.u8")?;
     let solid = &*solid;
     crate::grid::fill_with(solid, workers, |v| {
         let d2 = v.iter().map(|&q| (q as f64 - c).powi(2)).sum::<f64>();

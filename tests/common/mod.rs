@@ -6,11 +6,17 @@ use std::f64::consts::PI;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use harmap::grid::{BlockStore, GridSpec};
+use std::sync::atomic::AtomicBool;
+
+use harmap::grid::{BlockStore, GridSpec, MemBudget};
 use harmap::input::starfish::uv_sphere;
 use harmap::input::TriMesh;
 use harmap::math::Vec3;
+use harmap::pipeline::standard_ball_run;
+use harmap::progress::Silent;
 use harmap::run::RunDir;
+use harmap::solve::{solve, SolveOptions};
+use harmap::voxelize::StandardBall;
 
 /// A UV sphere of `radius` around `c`, outward normals.
 pub fn sphere(c: Vec3, radius: f64, rings: usize, segs: usize) -> TriMesh {
@@ -196,4 +202,24 @@ pub fn winding_disagreements(
         }
     }
     bad
+}
+
+/// The standard ball at N (blocks of `chunk`) in `dir`, solved to rtol 1e-8.
+pub fn solved_ball(dir: &Path, n: u64, chunk: u64) -> PathBuf {
+    let out = dir.join(format!("ball{n}-{chunk}.harmap"));
+    let p = StandardBall {
+        n,
+        sink_radius: 2.0,
+        chunk,
+        mem: MemBudget::default(),
+    };
+    standard_ball_run(&p, &out, true, &Silent).unwrap();
+    let opts = SolveOptions {
+        rtol: 1e-8,
+        checkpoint_every: 0.0,
+        ..SolveOptions::default()
+    };
+    let run = RunDir::open(&out).unwrap();
+    solve(&run, &opts, &AtomicBool::new(false), &Silent).unwrap();
+    out
 }
