@@ -147,7 +147,11 @@ fn exit_code(e: &anyhow::Error) -> u8 {
             return 2;
         }
         if let Some(h) = c.downcast_ref::<harmap::Error>() {
-            if let harmap::Error::Solve(harmap::solve::SolveError::Interrupted { .. }) = h {
+            if let harmap::Error::Solve(
+                harmap::solve::SolveError::Interrupted { .. }
+                | harmap::solve::SolveError::InterruptedPolish { .. },
+            ) = h
+            {
                 return 130;
             }
             return if h.is_bad_input() { 2 } else { 1 };

@@ -92,6 +92,15 @@ pub enum SolveError {
         /// What is wrong.
         reason: String,
     },
+    /// Stopped by a signal while polishing the tiny values, after the iterations; the
+    /// state checkpointed last (if any) is kept.
+    #[error("interrupted while polishing the tiny values after {iterations} iterations; {then}")]
+    InterruptedPolish {
+        /// Iterations done.
+        iterations: u64,
+        /// What to do now.
+        then: String,
+    },
     /// Stopped by a signal after writing a checkpoint.
     #[error("interrupted after {iterations} iterations; the state is checkpointed in {}; continue with `harmap solve {} --resume`", path.display(), run.display())]
     Interrupted {
@@ -551,8 +560,27 @@ pub fn solve(
         &opts.polish,
         opts.mem.work_bytes() / 2,
         workers,
+        &|| stop.load(Ordering::SeqCst),
     )?;
     progress.finish();
+    if polish.interrupted {
+        let then = if ck.written > 0 || resumed_at.is_some() {
+            format!(
+                "continue from the last checkpoint with `harmap solve {} --resume`",
+                run.root().display()
+            )
+        } else {
+            format!(
+                "no checkpoint was written yet; start again with `harmap solve {}`",
+                run.root().display()
+            )
+        };
+        return Err(SolveError::InterruptedPolish {
+            iterations: hist.iterations,
+            then,
+        }
+        .into());
+    }
     if polish.voxels > 0 {
         progress.info(&format!(
             "solve: polished {} tiny values in {} sweeps (last relative change {:.1e}); u < 0 at {} unknowns before, {} after",
