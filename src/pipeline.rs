@@ -63,8 +63,7 @@ pub fn voxelize_new_run(
             (*name).to_owned(),
         ),
     };
-    let staging = Staging::begin(out, force)?;
-    let report = voxelize::voxelize(&shape, &name, opts, staging.run(), progress)?;
+    let (staging, report, used) = voxelize_probes(&shape, &name, opts, out, force, progress)?;
     for w in &report.warnings {
         progress.warn(w);
     }
@@ -73,11 +72,77 @@ pub fn voxelize_new_run(
         &staging,
         &report,
         input_meta,
-        &serde_json::to_value(opts).expect("options"),
+        &serde_json::to_value(&used).expect("options"),
         seconds,
     )?;
     let run = staging.commit()?;
     Ok((run, report))
+}
+
+/// Voxelize into a new staging run. For a molecule with a probe ladder (`--probe
+/// 1.4,2,3`), each probe is tried in turn until the solid is one genus-0 piece (the
+/// last is kept whatever it gives, and `allow_genus` decides then); the report lists
+/// the trials, and the options returned are those of the probe kept.
+fn voxelize_probes(
+    shape: &Shape,
+    name: &str,
+    opts: &VoxelizeOptions,
+    out: &Path,
+    force: bool,
+    progress: &dyn Progress,
+) -> Result<(Staging, VoxelizeReport, VoxelizeOptions), crate::Error> {
+    let probes: Vec<f64> = std::iter::once(opts.probe)
+        .chain(opts.probe_ladder.iter().copied())
+        .collect();
+    if probes.len() > 1 {
+        let why = match shape {
+            Shape::Molecule(_) if opts.surface == voxelize::spheres::MolSurface::Vdw => {
+                Some("--surface vdw does not use the probe")
+            }
+            Shape::Molecule(_) => None,
+            _ => Some("only molecules and point sets have a probe"),
+        };
+        if let Some(why) = why {
+            return Err(voxelize::VoxelizeError::Options(format!(
+                "--probe with several radii: {why}"
+            ))
+            .into());
+        }
+    }
+    let mut trials = Vec::new();
+    for (i, &probe) in probes.iter().enumerate() {
+        let last = i + 1 == probes.len();
+        let mut o = opts.clone();
+        o.probe = probe;
+        if !last {
+            o.allow_genus = true;
+            o.skip_handle_search = true;
+        }
+        let staging = Staging::begin(out, force)?;
+        let mut report = voxelize::voxelize(shape, name, &o, staging.run(), progress)?;
+        let whole = report.genus == 0 && report.components == 1;
+        if probes.len() > 1 {
+            trials.push(voxelize::ProbeTrial {
+                probe,
+                genus: report.genus,
+                components: report.components,
+            });
+        }
+        if whole || last {
+            report.probe_trials = trials;
+            o.allow_genus = opts.allow_genus;
+            o.skip_handle_search = false;
+            return Ok((staging, report, o));
+        }
+        progress.info(&format!(
+            "probe {probe} Angstrom: {} piece(s), genus {}; trying probe {} Angstrom",
+            report.components,
+            report.genus,
+            probes[i + 1]
+        ));
+        drop(staging);
+    }
+    unreachable!("the last probe always returns")
 }
 
 /// Write the standard problem (see [`voxelize::StandardBall`]) as a new run at `out`.

@@ -1,6 +1,7 @@
 //! Molecules and point sets: the three solids on balls with known answers, the shared
 //! molecules' edge cases, PDB and PQR agreement, and errors that name the line.
 
+use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -277,4 +278,59 @@ fn bad_molecule_files_are_refused_with_the_line() {
         &run,
         &["--radius", "1.0", "--spacing", "0.2"],
     ));
+}
+
+/// A short tube, three rings of 18 carbon-sized balls 1.5 Angstrom apart, around a hole
+/// 4.5 Angstrom from their centers: a probe of 1.4 or 2.5 passes through it (4.5 > r +
+/// 1.7), so the SES keeps the tunnel (genus 1). A probe of 3.5 does not fit (5.2 > 4.5),
+/// and from either end reaches only to 0.6 Angstrom of the middle, so the SES fills
+/// the tunnel there (genus 0). `--probe
+/// 1.4,2.5,3.5` takes the first genus-0 one, says so, and records the probe it kept;
+/// one probe alone is refused with the advice to give several.
+#[test]
+fn a_probe_ladder_keeps_the_first_probe_that_gives_genus_0() {
+    let d = tempfile::tempdir().unwrap();
+    let mut ring = String::new();
+    for k in 0..54 {
+        let a = f64::from(k % 18) * std::f64::consts::TAU / 18.0;
+        let z = 1.5 * f64::from(k / 18 - 1);
+        writeln!(ring, "{:.4} {:.4} {z} 1.7", 4.5 * a.cos(), 4.5 * a.sin()).unwrap();
+    }
+    let xyzr = write(d.path(), "ring.xyzr", &ring);
+    let out = d.path().join("ring.harmap");
+    let one = voxelize(&xyzr, &out, &["--spacing", "0.3", "--probe", "1.4"]);
+    assert_eq!(one.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&one.stderr);
+    assert!(
+        err.contains("genus 1") && err.contains("--probe 1.4,2,3,4"),
+        "{err}"
+    );
+    assert!(!out.exists());
+
+    let o = voxelize(&xyzr, &out, &["--spacing", "0.3", "--probe", "1.4,2.5,3.5"]);
+    ok(&o);
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        said.contains("genus 0 at probe 3.5 Angstrom (tried 1.4: genus 1; 2.5: genus 1)"),
+        "{said}"
+    );
+    let info = harmap(&["info", out.to_str().unwrap(), "--json"]);
+    ok(&info);
+    let v: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    let stage = &v["harmap"]["stages"]["voxelize"];
+    assert_eq!(stage["options"]["probe"], 3.5, "{stage}");
+    assert_eq!(stage["result"]["genus"], 0);
+    let trials = stage["result"]["probe_trials"].as_array().unwrap();
+    let genus: Vec<i64> = trials
+        .iter()
+        .map(|t| t["genus"].as_i64().unwrap())
+        .collect();
+    assert_eq!(genus, [1, 1, 0]);
+    let text = harmap(&["info", out.to_str().unwrap()]);
+    assert!(String::from_utf8_lossy(&text.stdout).contains("probe:    genus 0 at probe 3.5"));
+
+    // A probe ladder needs a solid that uses the probe.
+    let vdw = voxelize(&xyzr, &out, &["--surface", "vdw", "--probe", "1,2"]);
+    assert_eq!(vdw.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&vdw.stderr).contains("--surface vdw does not use the probe"));
 }

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use harmap::run::RunDir;
 use harmap::voxelize::labels::NAMES;
+use harmap::voxelize::ProbeTrial;
 use serde_json::{json, Value};
 
 use super::Global;
@@ -143,6 +144,13 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
             "topology: {} piece(s), genus {}, Euler characteristic {}, {} cavities filled ({} voxels), inside by {}",
             v["components"], v["genus"], v["euler_characteristic"], v["cavities_filled"], v["cavity_voxels"], v["inside_rule"].as_str().unwrap_or("?")
         )?;
+        if let Some(p) = v
+            .get("probe_trials")
+            .and_then(|t| serde_json::from_value::<Vec<ProbeTrial>>(t.clone()).ok())
+            .and_then(|t| harmap::voxelize::probe_summary(&t))
+        {
+            writeln!(out, "probe:    {p}")?;
+        }
         if let Some(n) = v
             .get("closing_voxels")
             .and_then(Value::as_u64)

@@ -104,6 +104,9 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
             r.center[2],
             r.timings.iter().map(|t| t.1).sum::<f64>()
         ));
+        if let Some(p) = r.probe_summary() {
+            g.say(&format!("voxelize: {p}"));
+        }
     }
     let run = harmap::run::RunDir::open(&out).map_err(harmap::Error::from)?;
     let attrs = run.attrs().map_err(harmap::Error::from)?;

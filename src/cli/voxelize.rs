@@ -101,14 +101,18 @@ pub struct VoxelizeArgs {
     /// probe) or ses (solvent-excluded: what no probe ball in the solvent reaches).
     #[arg(long, value_enum, default_value_t = SurfaceArg::Ses, help_heading = "Molecules and point sets")]
     pub surface: SurfaceArg,
-    /// Molecules: probe radius of sas and ses, Angstrom.
+    /// Molecules: probe radius of sas and ses, Angstrom. Several radii (1.4,2,3) are
+    /// tried in turn until the solid is one genus-0 piece; the summary says which one
+    /// made it so (the last is kept either way, and --allow-genus decides then).
     #[arg(
         long,
-        value_name = "A",
-        default_value_t = 1.4,
+        value_name = "A[,A...]",
+        value_delimiter = ',',
+        num_args = 1..,
+        default_values_t = [1.4],
         help_heading = "Molecules and point sets"
     )]
-    pub probe: f64,
+    pub probe: Vec<f64>,
     /// PDB: the model to read [default: the first].
     #[arg(long, value_name = "N", help_heading = "Molecules and point sets")]
     pub model: Option<u32>,
@@ -198,8 +202,10 @@ impl VoxelizeArgs {
                     SurfaceArg::Sas => MolSurface::Sas,
                     SurfaceArg::Ses => MolSurface::Ses,
                 },
-                probe: self.probe,
+                probe: self.probe[0],
                 close: self.close,
+                probe_ladder: self.probe[1..].to_vec(),
+                skip_handle_search: false,
             },
             InputOptions {
                 raw,
@@ -240,6 +246,9 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         r.center_depth,
         r.genus
     ));
+    if let Some(p) = r.probe_summary() {
+        g.say(&format!("probe: {p}"));
+    }
     if r.closing_voxels > 0 {
         g.say(&format!(
             "closing by {} voxels added {} voxels",

@@ -89,6 +89,15 @@ pub struct VoxelizeOptions {
     /// Close the solid by a ball of this many voxels before the topology check (0: no).
     #[serde(default)]
     pub close: u32,
+    /// Molecules (SAS and SES): larger probe radii to try in turn, Angstrom, while the
+    /// solid at `probe` is not one genus-0 piece (see
+    /// [`crate::pipeline::voxelize_new_run`]).
+    #[serde(default)]
+    pub probe_ladder: Vec<f64>,
+    /// Skip the search for where handles are (the probe ladder's trials that a larger
+    /// probe follows).
+    #[serde(skip)]
+    pub skip_handle_search: bool,
 }
 
 fn default_probe() -> f64 {
@@ -138,6 +147,8 @@ impl Default for VoxelizeOptions {
             surface: spheres::MolSurface::Ses,
             probe: 1.4,
             close: 0,
+            probe_ladder: Vec::new(),
+            skip_handle_search: false,
         }
     }
 }
@@ -175,17 +186,81 @@ pub struct VoxelizeReport {
     #[serde(default)]
     pub closing_voxels: u64,
     /// Where handles are, when the genus is above 0: places where a closing (by
-    /// [`HANDLE_PROBE`] voxels, or twice `--close`) would plug tunnels.
+    /// [`HANDLE_PROBE`] voxels, [`HANDLE_PROBE_ANGSTROM`] for molecules, or twice
+    /// `--close`) would plug tunnels.
     #[serde(default)]
     pub handles: Vec<closing::Handle>,
+    /// The radius (voxels) of the closing that located `handles`.
+    #[serde(default)]
+    pub handle_radius: u32,
+    /// Molecules: the probes tried (`--probe` with several radii), in order, and what
+    /// each gave; the last one made this solid.
+    #[serde(default)]
+    pub probe_trials: Vec<ProbeTrial>,
     /// Warnings given.
     pub warnings: Vec<String>,
     /// Seconds per pass.
     pub timings: Vec<(String, f64)>,
 }
 
+impl VoxelizeReport {
+    /// For a probe ladder: which probe made the solid one genus-0 piece, and what the
+    /// others gave, e.g. "genus 0 at probe 3 Angstrom (tried 1.4: genus 156; 2: genus
+    /// 60)". `None` when one probe was given.
+    #[must_use]
+    pub fn probe_summary(&self) -> Option<String> {
+        probe_summary(&self.probe_trials)
+    }
+}
+
+/// What [`VoxelizeReport::probe_summary`] says of these trials.
+#[must_use]
+pub fn probe_summary(trials: &[ProbeTrial]) -> Option<String> {
+    {
+        let (kept, tried) = trials.split_last()?;
+        let what = |t: &ProbeTrial| {
+            if t.components > 1 {
+                format!("{}: {} pieces, genus {}", t.probe, t.components, t.genus)
+            } else {
+                format!("{}: genus {}", t.probe, t.genus)
+            }
+        };
+        let tried: Vec<String> = tried.iter().map(what).collect();
+        let tried = if tried.is_empty() {
+            String::new()
+        } else {
+            format!(" (tried {})", tried.join("; "))
+        };
+        Some(if kept.genus == 0 && kept.components == 1 {
+            format!("genus 0 at probe {} Angstrom{tried}", kept.probe)
+        } else {
+            format!(
+                "no probe gave one genus-0 piece{tried}; kept probe {} Angstrom ({})",
+                kept.probe,
+                what(kept)
+            )
+        })
+    }
+}
+
 /// Radius (voxels) of the closing that locates handles when `--close` is not given.
 pub const HANDLE_PROBE: u32 = 3;
+
+/// For molecules, the same radius in Angstrom (so that it means the same at any
+/// spacing: at 0.25 Angstrom, 3 voxels are 0.75 Angstrom, narrower than any tunnel a
+/// 1.4 Angstrom probe leaves). Never below [`HANDLE_PROBE`] voxels.
+pub const HANDLE_PROBE_ANGSTROM: f64 = 3.0;
+
+/// One probe radius tried for a molecule, and the topology it gave.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ProbeTrial {
+    /// Probe radius, Angstrom.
+    pub probe: f64,
+    /// Genus of the solid.
+    pub genus: i64,
+    /// Pieces of the solid left (after `--keep-largest`).
+    pub components: u64,
+}
 
 /// Bytes a worker of the label pass holds (haloed block, distances, output, codec).
 pub(crate) fn label_worker_bytes(chunk: u64) -> u64 {
@@ -490,21 +565,37 @@ pub fn voxelize(
     let mut handles = Vec::new();
     let probe_r = if opts.close > 0 {
         2 * opts.close
+    } else if matches!(shape, Shape::Molecule(_)) {
+        HANDLE_PROBE.max((HANDLE_PROBE_ANGSTROM / spec.spacing).round() as u32)
     } else {
         HANDLE_PROBE
     };
-    if genus > 0 {
+    if genus > 0 && !opts.skip_handle_search {
         let (out, w) = closing_grid("probe.u8", probe_r)?;
         closing::close(solid, &*out, probe_r, w, progress)?;
         handles = closing::handles(&*out, 64, w_ccl, ccl_limit, progress)?;
         lap("handles", &mut t);
     }
     let closable: i64 = handles.iter().map(|h| h.closes).sum();
-    let where_ = if handles.is_empty() {
-        format!("a closing by {probe_r} voxels plugs none of them (the tunnels are wider)")
+    let (by, larger) = if matches!(shape, Shape::Molecule(_)) {
+        (
+            format!(
+                "{probe_r} voxels ({} {})",
+                f64::from(probe_r) * spec.spacing,
+                spec.unit.as_deref().unwrap_or("units")
+            ),
+            ", or a larger probe, e.g. --probe 1.4,2,3,4 to take the first that gives genus 0",
+        )
+    } else {
+        (format!("{probe_r} voxels"), "")
+    };
+    let where_ = if opts.skip_handle_search {
+        "not searched".to_owned()
+    } else if handles.is_empty() {
+        format!("a closing by {by} plugs none of them (the tunnels are wider){larger}")
     } else {
         format!(
-            "a closing by {probe_r} voxels plugs {closable} of them, at voxel(s) {}{} (pass --close {probe_r}, or for molecules a larger --probe)",
+            "a closing by {by} plugs {closable} of them, at voxel(s) {}{} (pass --close {probe_r}{larger})",
             handles
                 .iter()
                 .take(5)
@@ -604,6 +695,12 @@ pub fn voxelize(
         removed_voxels,
         closing_voxels,
         handles,
+        handle_radius: if genus > 0 && !opts.skip_handle_search {
+            probe_r
+        } else {
+            0
+        },
+        probe_trials: Vec::new(),
         warnings,
         timings,
     })

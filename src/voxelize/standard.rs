@@ -126,6 +126,8 @@ pub fn standard_ball(
         removed_voxels: 0,
         closing_voxels: 0,
         handles: Vec::new(),
+        handle_radius: 0,
+        probe_trials: Vec::new(),
         warnings: Vec::new(),
         timings: Vec::new(),
     })
