@@ -1,6 +1,7 @@
 //! Molecules and point sets: the three solids on balls with known answers, the shared
 //! molecules' edge cases, PDB and PQR agreement, and errors that name the line.
 
+use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -257,6 +258,13 @@ fn bad_molecule_files_are_refused_with_the_line() {
             "bad.xyzr:2: z is `nan`",
         ),
         ("pts.csv", "x,y,z\n1,2,3\n", "--radius"),
+        ("empty.cif", "", "no atoms"),
+        (
+            "bad.cif",
+            "data_x\nloop_\n_atom_site.type_symbol\n_atom_site.Cartn_x\n_atom_site.Cartn_y\n\
+             _atom_site.Cartn_z\n_atom_site.B_iso_or_equiv\nC 1 2 3 inf\nC 1 ? 3 nan\n",
+            "bad.cif:9: y (_atom_site.Cartn_y) is `?`, not a number",
+        ),
     ] {
         let p = write(d.path(), name, text);
         let o = voxelize(&p, &run, &[]);
@@ -277,4 +285,115 @@ fn bad_molecule_files_are_refused_with_the_line() {
         &run,
         &["--radius", "1.0", "--spacing", "0.2"],
     ));
+}
+
+/// One atom: (chain, residue number, element, x, y, z).
+type TestAtom = (&'static str, i32, &'static str, f64, f64, f64);
+
+/// A rod of carbon and nitrogen atoms along x: chain A then chain B, a residue per atom.
+fn rod() -> Vec<TestAtom> {
+    (0..11)
+        .map(|k| {
+            let x = 1.5 * f64::from(k);
+            let chain = if k < 6 { "A" } else { "B" };
+            let element = if k % 3 == 0 { "N" } else { "C" };
+            (chain, k + 1, element, x, 0.3 * f64::from(k % 2), 0.0)
+        })
+        .collect()
+}
+
+fn pdb_text(atoms: &[TestAtom]) -> String {
+    let mut s = String::from("HEADER    TEST\n");
+    for (k, &(chain, seq, el, x, y, z)) in atoms.iter().enumerate() {
+        let _ = writeln!(
+            s,
+            "ATOM  {:>5} {:<4} ALA {}{:>4}    {:>8.3}{:>8.3}{:>8.3}  1.00 10.00          {:>2}",
+            k + 1,
+            el,
+            chain,
+            seq,
+            x,
+            y,
+            z,
+            el
+        );
+    }
+    s + "END\n"
+}
+
+/// The same atoms as mmCIF, with the columns in another order than PDB's, quoted
+/// values, a comment, and `inf` in a column harmap does not read.
+fn cif_text(atoms: &[TestAtom]) -> String {
+    let mut s = String::from(
+        "data_test\n# written by the test\n_entry.id 'TEST ROD'\nloop_\n\
+         _atom_site.group_PDB\n_atom_site.id\n_atom_site.Cartn_x\n_atom_site.Cartn_y\n\
+         _atom_site.Cartn_z\n_atom_site.type_symbol\n_atom_site.label_atom_id\n\
+         _atom_site.label_alt_id\n_atom_site.label_comp_id\n_atom_site.label_asym_id\n\
+         _atom_site.label_seq_id\n_atom_site.B_iso_or_equiv\n_atom_site.auth_seq_id\n\
+         _atom_site.auth_asym_id\n_atom_site.pdbx_PDB_model_num\n",
+    );
+    for (k, &(chain, seq, el, x, y, z)) in atoms.iter().enumerate() {
+        let _ = writeln!(
+            s,
+            "ATOM {} {x:.3} {y:.3} {z:.3} {el} \"{el}\" . ALA {chain}x {seq} inf {seq} '{chain}' 1",
+            k + 1
+        );
+    }
+    s + "#\n"
+}
+
+/// issue 6: an mmCIF file and a PDB file of the same atoms give the same atoms and the
+/// same solid, plain, as .mmcif and gzipped.
+#[test]
+fn mmcif_and_pdb_of_the_same_atoms_give_the_same_solid() {
+    let d = tempfile::tempdir().unwrap();
+    let atoms = rod();
+    let pdb = write(d.path(), "rod.pdb", &pdb_text(&atoms));
+    let cif = cif_text(&atoms);
+    let o = MoleculeOptions::default();
+    let a = read(&pdb, "pdb", pdb_text(&atoms).as_bytes(), &o).unwrap();
+    let b = read(Path::new("rod.cif"), "cif", cif.as_bytes(), &o).unwrap();
+    let key = |m: &harmap::input::molecule::Molecule| {
+        m.atoms
+            .iter()
+            .map(|a| {
+                (
+                    a.pos.to_array(),
+                    a.radius,
+                    a.element.clone(),
+                    a.chain.clone(),
+                    a.seq,
+                )
+            })
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(key(&a), key(&b));
+    assert_eq!(b.atoms[7].chain, "B");
+    let gz = d.path().join("rod.mmcif.gz");
+    let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+    std::io::Write::write_all(&mut enc, cif.as_bytes()).unwrap();
+    std::fs::write(&gz, enc.finish().unwrap()).unwrap();
+    let flags = ["--spacing", "0.5"];
+    let runs: Vec<PathBuf> = [pdb, write(d.path(), "rod.cif", &cif), gz]
+        .iter()
+        .enumerate()
+        .map(|(k, input)| {
+            let out = d.path().join(format!("{k}.harmap"));
+            ok(&voxelize(input, &out, &flags));
+            out
+        })
+        .collect();
+    let labels = crate::common::read_labels(&runs[0]).1;
+    for r in &runs[1..] {
+        assert!(crate::common::read_labels(r).1 == labels, "{}", r.display());
+    }
+    let attrs = harmap::run::RunDir::open(&runs[2])
+        .unwrap()
+        .attrs()
+        .unwrap();
+    assert_eq!(attrs.pointer("/input/format").unwrap(), "mmcif");
+    assert_eq!(
+        attrs.pointer("/input/molecule/keep_hetatm"),
+        Some(&serde_json::Value::Bool(false))
+    );
 }
