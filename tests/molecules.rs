@@ -397,3 +397,104 @@ fn mmcif_and_pdb_of_the_same_atoms_give_the_same_solid() {
         Some(&serde_json::Value::Bool(false))
     );
 }
+
+/// issue 6: the atlas of a molecule run colored by the chain, residue or named domain of
+/// the atom nearest each seed; refused with exit 2 for runs without atoms, for atoms
+/// without residue numbers, and when the input moved or changed.
+#[test]
+fn the_atlas_colors_a_molecule_by_chain_residue_and_domain() {
+    let d = tempfile::tempdir().unwrap();
+    let pdb = write(d.path(), "rod.pdb", &pdb_text(&rod()));
+    let run = d.path().join("rod.harmap");
+    let r = run.to_str().unwrap();
+    let o = harmap(&["run", pdb.to_str().unwrap(), "-o", r, "--spacing", "0.5"]);
+    ok(&o);
+    assert!(
+        !String::from_utf8_lossy(&o.stderr).contains("atlas colored by the main axis"),
+        "harmap run colors a PDB's atlas by residue: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(d.path().join("rod.atlas.png").is_file());
+    // Every seed lies within an atom's radius plus the probe (and a voxel) of the atom
+    // found for it, and the seeds at the two ends get the two chains.
+    let rd = harmap::run::RunDir::open(&run).unwrap();
+    let m = harmap::report::domains::input_molecule(&rd, "chain").unwrap();
+    let seeds = harmap::trace::read_seeds(&rd).unwrap();
+    let near = harmap::report::domains::nearest_atoms(&m, &seeds.position);
+    for (p, &i) in seeds.position.iter().zip(&near) {
+        let dist = (*p - m.atoms[i].pos).length();
+        assert!(dist <= 1.7 + 1.4 + 0.5, "seed {p} is {dist} from its atom");
+        if p.x < -1.0 {
+            assert_eq!(m.atoms[i].chain, "A");
+        }
+        if p.x > 16.0 {
+            assert_eq!(m.atoms[i].chain, "B");
+        }
+    }
+    for extra in [
+        &["--color", "chain"][..],
+        &["--color", "residue"],
+        &["--color", "residue", "--sphere"],
+        &["--color", "domain", "--domains", "head=1-3,tail=B:9-11"],
+    ] {
+        let png = d.path().join("a.png");
+        let _ = std::fs::remove_file(&png);
+        let mut args = vec!["atlas", r, "-o", png.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        ok(&harmap(&args));
+        assert!(png.is_file(), "{extra:?}");
+    }
+    let refused = |run: &str, extra: &[&str], expect: &str| {
+        let mut args = vec!["atlas", run, "-o", "/nonexistent/never.png"];
+        args.extend_from_slice(extra);
+        let o = harmap(&args);
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert_eq!(o.status.code(), Some(2), "{extra:?}: {err}");
+        assert!(err.contains(expect), "{extra:?}: {err}");
+    };
+    refused(r, &["--color", "domain"], "--domains");
+    refused(
+        r,
+        &["--color", "chain", "--domains", "x=1-2"],
+        "--color domain",
+    );
+    refused(r, &["--color", "domain", "--domains", "x=5"], "x=5");
+    // The input changed, then moved.
+    let text = std::fs::read_to_string(&pdb).unwrap();
+    std::fs::write(&pdb, text.replace("HEADER    TEST", "HEADER    EDITED")).unwrap();
+    refused(r, &["--color", "chain"], "sha256");
+    std::fs::remove_file(&pdb).unwrap();
+    refused(r, &["--color", "residue"], pdb.to_str().unwrap());
+    // Balls without residues, and a mesh.
+    let xyzr = write(d.path(), "two.xyzr", "0 0 0 2.0\n3 0 0 2.0\n");
+    let xr = d.path().join("xyzr.harmap");
+    ok(&harmap(&[
+        "run",
+        xyzr.to_str().unwrap(),
+        "-o",
+        xr.to_str().unwrap(),
+        "--spacing",
+        "0.4",
+    ]));
+    refused(
+        xr.to_str().unwrap(),
+        &["--color", "residue"],
+        "residue number",
+    );
+    refused(xr.to_str().unwrap(), &["--color", "chain"], "chain id");
+    let obj = d.path().join("ball.obj");
+    crate::common::write_obj(
+        &obj,
+        &crate::common::sphere(harmap::math::Vec3::ZERO, 1.0, 12, 24),
+    );
+    let mr = d.path().join("ball.harmap");
+    ok(&harmap(&[
+        "run",
+        obj.to_str().unwrap(),
+        "-o",
+        mr.to_str().unwrap(),
+        "--resolution",
+        "20",
+    ]));
+    refused(mr.to_str().unwrap(), &["--color", "chain"], "molecule");
+}
