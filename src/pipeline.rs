@@ -46,11 +46,12 @@ pub fn voxelize_new_run(
                 Shape::Volume(_) => "label-volume".into(),
             };
             let name = path.display().to_string();
-            (
-                shape,
-                json!({"path": name, "sha256": sha, "format": format}),
-                name,
-            )
+            let mut meta = json!({"path": name, "sha256": sha, "format": format});
+            if let Shape::Molecule(_) = &shape {
+                // How the atoms were read, so that pictures can read them again alike.
+                meta["molecule"] = serde_json::to_value(&iopts.molecule).expect("options");
+            }
+            (shape, meta, name)
         }
         Source::Starfish => (
             Shape::Mesh(input::starfish::starfish(64, 240)),

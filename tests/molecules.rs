@@ -258,6 +258,13 @@ fn bad_molecule_files_are_refused_with_the_line() {
             "bad.xyzr:2: z is `nan`",
         ),
         ("pts.csv", "x,y,z\n1,2,3\n", "--radius"),
+        ("empty.cif", "", "no atoms"),
+        (
+            "bad.cif",
+            "data_x\nloop_\n_atom_site.type_symbol\n_atom_site.Cartn_x\n_atom_site.Cartn_y\n\
+             _atom_site.Cartn_z\n_atom_site.B_iso_or_equiv\nC 1 2 3 inf\nC 1 ? 3 nan\n",
+            "bad.cif:9: y (_atom_site.Cartn_y) is `?`, not a number",
+        ),
     ] {
         let p = write(d.path(), name, text);
         let o = voxelize(&p, &run, &[]);
@@ -333,4 +340,216 @@ fn a_probe_ladder_keeps_the_first_probe_that_gives_genus_0() {
     let vdw = voxelize(&xyzr, &out, &["--surface", "vdw", "--probe", "1,2"]);
     assert_eq!(vdw.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&vdw.stderr).contains("--surface vdw does not use the probe"));
+}
+
+/// One atom: (chain, residue number, element, x, y, z).
+type TestAtom = (&'static str, i32, &'static str, f64, f64, f64);
+
+/// A rod of carbon and nitrogen atoms along x: chain A then chain B, a residue per atom.
+fn rod() -> Vec<TestAtom> {
+    (0..11)
+        .map(|k| {
+            let x = 1.5 * f64::from(k);
+            let chain = if k < 6 { "A" } else { "B" };
+            let element = if k % 3 == 0 { "N" } else { "C" };
+            (chain, k + 1, element, x, 0.3 * f64::from(k % 2), 0.0)
+        })
+        .collect()
+}
+
+fn pdb_text(atoms: &[TestAtom]) -> String {
+    let mut s = String::from("HEADER    TEST\n");
+    for (k, &(chain, seq, el, x, y, z)) in atoms.iter().enumerate() {
+        let _ = writeln!(
+            s,
+            "ATOM  {:>5} {:<4} ALA {}{:>4}    {:>8.3}{:>8.3}{:>8.3}  1.00 10.00          {:>2}",
+            k + 1,
+            el,
+            chain,
+            seq,
+            x,
+            y,
+            z,
+            el
+        );
+    }
+    s + "END\n"
+}
+
+/// The same atoms as mmCIF, with the columns in another order than PDB's, quoted
+/// values, a comment, and `inf` in a column harmap does not read.
+fn cif_text(atoms: &[TestAtom]) -> String {
+    let mut s = String::from(
+        "data_test\n# written by the test\n_entry.id 'TEST ROD'\nloop_\n\
+         _atom_site.group_PDB\n_atom_site.id\n_atom_site.Cartn_x\n_atom_site.Cartn_y\n\
+         _atom_site.Cartn_z\n_atom_site.type_symbol\n_atom_site.label_atom_id\n\
+         _atom_site.label_alt_id\n_atom_site.label_comp_id\n_atom_site.label_asym_id\n\
+         _atom_site.label_seq_id\n_atom_site.B_iso_or_equiv\n_atom_site.auth_seq_id\n\
+         _atom_site.auth_asym_id\n_atom_site.pdbx_PDB_model_num\n",
+    );
+    for (k, &(chain, seq, el, x, y, z)) in atoms.iter().enumerate() {
+        let _ = writeln!(
+            s,
+            "ATOM {} {x:.3} {y:.3} {z:.3} {el} \"{el}\" . ALA {chain}x {seq} inf {seq} '{chain}' 1",
+            k + 1
+        );
+    }
+    s + "#\n"
+}
+
+/// issue 6: an mmCIF file and a PDB file of the same atoms give the same atoms and the
+/// same solid, plain, as .mmcif and gzipped.
+#[test]
+fn mmcif_and_pdb_of_the_same_atoms_give_the_same_solid() {
+    let d = tempfile::tempdir().unwrap();
+    let atoms = rod();
+    let pdb = write(d.path(), "rod.pdb", &pdb_text(&atoms));
+    let cif = cif_text(&atoms);
+    let o = MoleculeOptions::default();
+    let a = read(&pdb, "pdb", pdb_text(&atoms).as_bytes(), &o).unwrap();
+    let b = read(Path::new("rod.cif"), "cif", cif.as_bytes(), &o).unwrap();
+    let key = |m: &harmap::input::molecule::Molecule| {
+        m.atoms
+            .iter()
+            .map(|a| {
+                (
+                    a.pos.to_array(),
+                    a.radius,
+                    a.element.clone(),
+                    a.chain.clone(),
+                    a.seq,
+                )
+            })
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(key(&a), key(&b));
+    assert_eq!(b.atoms[7].chain, "B");
+    let gz = d.path().join("rod.mmcif.gz");
+    let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+    std::io::Write::write_all(&mut enc, cif.as_bytes()).unwrap();
+    std::fs::write(&gz, enc.finish().unwrap()).unwrap();
+    let flags = ["--spacing", "0.5"];
+    let runs: Vec<PathBuf> = [pdb, write(d.path(), "rod.cif", &cif), gz]
+        .iter()
+        .enumerate()
+        .map(|(k, input)| {
+            let out = d.path().join(format!("{k}.harmap"));
+            ok(&voxelize(input, &out, &flags));
+            out
+        })
+        .collect();
+    let labels = crate::common::read_labels(&runs[0]).1;
+    for r in &runs[1..] {
+        assert!(crate::common::read_labels(r).1 == labels, "{}", r.display());
+    }
+    let attrs = harmap::run::RunDir::open(&runs[2])
+        .unwrap()
+        .attrs()
+        .unwrap();
+    assert_eq!(attrs.pointer("/input/format").unwrap(), "mmcif");
+    assert_eq!(
+        attrs.pointer("/input/molecule/keep_hetatm"),
+        Some(&serde_json::Value::Bool(false))
+    );
+}
+
+/// issue 6: the atlas of a molecule run colored by the chain, residue or named domain of
+/// the atom nearest each seed; refused with exit 2 for runs without atoms, for atoms
+/// without residue numbers, and when the input moved or changed.
+#[test]
+fn the_atlas_colors_a_molecule_by_chain_residue_and_domain() {
+    let d = tempfile::tempdir().unwrap();
+    let pdb = write(d.path(), "rod.pdb", &pdb_text(&rod()));
+    let run = d.path().join("rod.harmap");
+    let r = run.to_str().unwrap();
+    let o = harmap(&["run", pdb.to_str().unwrap(), "-o", r, "--spacing", "0.5"]);
+    ok(&o);
+    assert!(
+        !String::from_utf8_lossy(&o.stderr).contains("atlas colored by the main axis"),
+        "harmap run colors a PDB's atlas by residue: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(d.path().join("rod.atlas.png").is_file());
+    // Every seed lies within an atom's radius plus the probe (and a voxel) of the atom
+    // found for it, and the seeds at the two ends get the two chains.
+    let rd = harmap::run::RunDir::open(&run).unwrap();
+    let m = harmap::report::domains::input_molecule(&rd, "chain").unwrap();
+    let seeds = harmap::trace::read_seeds(&rd).unwrap();
+    let near = harmap::report::domains::nearest_atoms(&m, &seeds.position);
+    for (p, &i) in seeds.position.iter().zip(&near) {
+        let dist = (*p - m.atoms[i].pos).length();
+        assert!(dist <= 1.7 + 1.4 + 0.5, "seed {p} is {dist} from its atom");
+        if p.x < -1.0 {
+            assert_eq!(m.atoms[i].chain, "A");
+        }
+        if p.x > 16.0 {
+            assert_eq!(m.atoms[i].chain, "B");
+        }
+    }
+    for extra in [
+        &["--color", "chain"][..],
+        &["--color", "residue"],
+        &["--color", "residue", "--sphere"],
+        &["--color", "domain", "--domains", "head=1-3,tail=B:9-11"],
+    ] {
+        let png = d.path().join("a.png");
+        let _ = std::fs::remove_file(&png);
+        let mut args = vec!["atlas", r, "-o", png.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        ok(&harmap(&args));
+        assert!(png.is_file(), "{extra:?}");
+    }
+    let refused = |run: &str, extra: &[&str], expect: &str| {
+        let mut args = vec!["atlas", run, "-o", "/nonexistent/never.png"];
+        args.extend_from_slice(extra);
+        let o = harmap(&args);
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert_eq!(o.status.code(), Some(2), "{extra:?}: {err}");
+        assert!(err.contains(expect), "{extra:?}: {err}");
+    };
+    refused(r, &["--color", "domain"], "--domains");
+    refused(
+        r,
+        &["--color", "chain", "--domains", "x=1-2"],
+        "--color domain",
+    );
+    refused(r, &["--color", "domain", "--domains", "x=5"], "x=5");
+    // The input changed, then moved.
+    let text = std::fs::read_to_string(&pdb).unwrap();
+    std::fs::write(&pdb, text.replace("HEADER    TEST", "HEADER    EDITED")).unwrap();
+    refused(r, &["--color", "chain"], "sha256");
+    std::fs::remove_file(&pdb).unwrap();
+    refused(r, &["--color", "residue"], pdb.to_str().unwrap());
+    // Balls without residues, and a mesh.
+    let xyzr = write(d.path(), "two.xyzr", "0 0 0 2.0\n3 0 0 2.0\n");
+    let xr = d.path().join("xyzr.harmap");
+    ok(&harmap(&[
+        "run",
+        xyzr.to_str().unwrap(),
+        "-o",
+        xr.to_str().unwrap(),
+        "--spacing",
+        "0.4",
+    ]));
+    refused(
+        xr.to_str().unwrap(),
+        &["--color", "residue"],
+        "residue number",
+    );
+    refused(xr.to_str().unwrap(), &["--color", "chain"], "chain id");
+    let obj = d.path().join("ball.obj");
+    crate::common::write_obj(
+        &obj,
+        &crate::common::sphere(harmap::math::Vec3::ZERO, 1.0, 12, 24),
+    );
+    let mr = d.path().join("ball.harmap");
+    ok(&harmap(&[
+        "run",
+        obj.to_str().unwrap(),
+        "-o",
+        mr.to_str().unwrap(),
+        "--resolution",
+        "20",
+    ]));
+    refused(mr.to_str().unwrap(), &["--color", "chain"], "molecule");
 }

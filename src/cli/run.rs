@@ -180,7 +180,17 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         ));
     }
     let atlas = out.with_extension("atlas.png");
-    harmap::report::atlas(&run, &atlas, false, harmap::report::ColorBy::Axis)?;
+    let attrs = run.attrs().map_err(harmap::Error::from)?;
+    let by = harmap::report::default_coloring(&attrs);
+    if let Err(e) = harmap::report::atlas(&run, &atlas, false, &by) {
+        // A molecule's residues color its atlas when they can be had; the axis does
+        // otherwise (a file without residue numbers, or moved since the voxelization).
+        if by == harmap::report::ColorBy::Axis || !e.is_bad_input() {
+            return Err(e.into());
+        }
+        eprintln!("warning: atlas colored by the main axis: {e}");
+        harmap::report::atlas(&run, &atlas, false, &harmap::report::ColorBy::Axis)?;
+    }
     let attrs = run.attrs().map_err(harmap::Error::from)?;
     let secs = |s: &str| {
         attrs

@@ -16,13 +16,14 @@ use super::{Global, UsageError};
 /// Voxelize a shape into a new run directory: labels and the shape center.
 ///
 /// INPUT is a closed triangle surface (.obj, .stl, .ply), a TetGen mesh (.node/.ele),
-/// a molecule (.pdb, .pqr, .xyzr, .xyz; Bondi radii by element, PQR radii as given) or a
-/// point set (.csv of x,y,z with --radius), a label volume (a Zarr v3 array directory,
-/// or .raw with --raw-shape and --raw-dtype; anything > 0 is inside), any of them
-/// optionally .gz. Molecules become the solid --surface says (default: ses with a 1.4
-/// Angstrom probe); waters are left out, and other hetero groups unless --keep-hetatm. The solid must be one piece of
-/// genus 0: enclosed cavities are filled, and handles or several pieces are refused
-/// unless --allow-genus or --keep-largest says otherwise.
+/// a molecule (.pdb, .cif/.mmcif, .pqr, .xyzr, .xyz; Bondi radii by element, PQR radii
+/// as given) or a point set (.csv of x,y,z with --radius), a label volume (a Zarr v3
+/// array directory, or .raw with --raw-shape and --raw-dtype; anything > 0 is inside),
+/// any of them optionally .gz. Molecules become the solid --surface says (default: ses
+/// with a 1.4 Angstrom probe); waters are left out, and other hetero groups unless
+/// --keep-hetatm. The solid must be one piece of genus 0: enclosed cavities are filled,
+/// and handles or several pieces are refused unless --allow-genus or --keep-largest
+/// says otherwise.
 ///
 /// Labels written to RUN/labels/0: 0 exterior, 1 boundary, 2 interior, 3 center,
 /// 4..7 the exterior layers 1..4.
@@ -113,7 +114,7 @@ pub struct VoxelizeArgs {
         help_heading = "Molecules and point sets"
     )]
     pub probe: Vec<f64>,
-    /// PDB: the model to read [default: the first].
+    /// PDB and mmCIF: the model to read [default: the first].
     #[arg(long, value_name = "N", help_heading = "Molecules and point sets")]
     pub model: Option<u32>,
     /// Keep hetero groups (ligands, ions) other than water.

@@ -37,7 +37,7 @@ pub enum InputError {
         message: String,
     },
     /// The file name does not say which format it is.
-    #[error("{}: unknown input format '{ext}'; harmap reads .obj, .stl, .ply, TetGen .node/.ele, molecules and point sets (.pdb, .pqr, .xyzr, .xyz, .csv with --radius), Zarr label volumes (a directory with zarr.json) and .raw volumes (with --raw-shape and --raw-dtype), each of the files optionally gzip-compressed (.gz)", path.display())]
+    #[error("{}: unknown input format '{ext}'; harmap reads .obj, .stl, .ply, TetGen .node/.ele, molecules and point sets (.pdb, .cif/.mmcif, .pqr, .xyzr, .xyz, .csv with --radius), Zarr label volumes (a directory with zarr.json) and .raw volumes (with --raw-shape and --raw-dtype), each of the files optionally gzip-compressed (.gz)", path.display())]
     UnknownFormat {
         /// The file.
         path: PathBuf,

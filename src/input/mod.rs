@@ -1,11 +1,13 @@
-//! Reading shapes: triangle meshes (OBJ, STL, PLY), tetrahedral meshes (TetGen), and
-//! label volumes that are already voxelized (Zarr v3 arrays, raw bytes).
+//! Reading shapes: triangle meshes (OBJ, STL, PLY), tetrahedral meshes (TetGen),
+//! molecules and point sets (PDB, mmCIF, PQR, XYZR, XYZ, CSV), and label volumes that
+//! are already voxelized (Zarr v3 arrays, raw bytes).
 //!
 //! Every reader returns an [`InputError`] naming the file (and the line, for text
 //! formats) on bad input; none panics. Any file may be gzip-compressed (`.gz`).
 
 mod error;
 mod mesh;
+mod mmcif;
 pub mod molecule;
 mod obj;
 mod ply;

@@ -1,11 +1,14 @@
-//! Atoms and point sets: PDB, PQR, XYZR, XYZ and CSV points, each a set of balls.
+//! Atoms and point sets: PDB, mmCIF, PQR, XYZR, XYZ and CSV points, each a set of balls.
 //!
 //! - PDB: ATOM/HETATM records by their fixed columns; the first model unless `model`;
 //!   alternate locations: the first one met for each atom; element from columns 77-78,
-//!   else from the atom name. Columns harmap does not use (occupancy, B-factor) are not
-//!   read, so values such as `inf` there do not matter.
+//!   else from the atom name; chain from column 22 (else the segment id, columns
+//!   73-76), residue number from columns 23-26. Columns harmap does not use (occupancy,
+//!   B-factor) are not read, so values such as `inf` there do not matter.
+//! - mmCIF: the `_atom_site` loop, with the PDB reader's rules (`super::mmcif`).
 //! - PQR: whitespace-separated ATOM/HETATM records whose last five fields are x, y, z,
-//!   charge and radius; a radius of 0 takes the table radius (with a warning).
+//!   charge and radius, the residue number before them and the chain after the residue
+//!   name when there is one; a radius of 0 takes the table radius (with a warning).
 //! - XYZR: `x y z r` per line. XYZ: a count line, a comment line, then `El x y z`.
 //! - Points (`.csv`, or any of the above with `--radius`): every point gets that radius.
 //!
@@ -32,6 +35,10 @@ pub struct Atom {
     pub element: String,
     /// Residue name (empty for points).
     pub residue: String,
+    /// Chain id (empty where the format has none).
+    pub chain: String,
+    /// Residue sequence number (0 where the format has none, or it is not an integer).
+    pub seq: i32,
     /// Line of the file (1-based).
     pub line: usize,
 }
@@ -116,10 +123,10 @@ pub fn bondi(element: &str) -> Option<f64> {
         .map(|&(_, r)| r)
 }
 
-const WATERS: [&str; 6] = ["HOH", "WAT", "H2O", "DOD", "TIP3", "SOL"];
+pub(super) const WATERS: [&str; 6] = ["HOH", "WAT", "H2O", "DOD", "TIP3", "SOL"];
 
 /// The element of a PDB atom name (columns 13-16) when the element column is empty.
-fn element_from_name(name: &str, het: bool) -> String {
+pub(super) fn element_from_name(name: &str, het: bool) -> String {
     let raw = name;
     let t = raw.trim();
     // Names of one-letter elements start in column 14 (a space or digit in 13);
@@ -140,7 +147,7 @@ fn element_from_name(name: &str, het: bool) -> String {
     capitalize(&letters[..1])
 }
 
-fn capitalize(s: &str) -> String {
+pub(super) fn capitalize(s: &str) -> String {
     let mut c = s.chars();
     match c.next() {
         Some(f) => f.to_ascii_uppercase().to_string() + &c.as_str().to_ascii_lowercase(),
@@ -151,15 +158,19 @@ fn capitalize(s: &str) -> String {
 /// Whether `path` names a molecule or point format harmap reads.
 #[must_use]
 pub fn is_molecule(ext: &str) -> bool {
-    matches!(ext, "pdb" | "ent" | "pqr" | "xyzr" | "xyz" | "csv")
+    matches!(
+        ext,
+        "pdb" | "ent" | "cif" | "mmcif" | "pqr" | "xyzr" | "xyz" | "csv"
+    )
 }
 
-struct Reader<'a> {
-    path: &'a Path,
+/// The file being read, for errors that name it and the line.
+pub(super) struct Reader<'a> {
+    pub(super) path: &'a Path,
 }
 
 impl Reader<'_> {
-    fn err(&self, line: usize, msg: impl Into<String>) -> InputError {
+    pub(super) fn err(&self, line: usize, msg: impl Into<String>) -> InputError {
         InputError::Parse {
             path: PathBuf::from(self.path),
             line: line as u64,
@@ -167,7 +178,7 @@ impl Reader<'_> {
         }
     }
 
-    fn number(&self, line: usize, what: &str, s: &str) -> Result<f64, InputError> {
+    pub(super) fn number(&self, line: usize, what: &str, s: &str) -> Result<f64, InputError> {
         let t = s.trim();
         match t.parse::<f64>() {
             Ok(v) if v.is_finite() => Ok(v),
@@ -201,6 +212,7 @@ pub fn read(
     let r = Reader { path };
     let mut m = match ext {
         "pdb" | "ent" => read_pdb(&r, &text, o)?,
+        "cif" | "mmcif" => super::mmcif::read(&r, &text, o)?,
         "pqr" => read_pqr(&r, &text, o)?,
         "xyzr" => read_xyzr(&r, &text)?,
         "xyz" => read_xyz(&r, &text)?,
@@ -252,7 +264,7 @@ pub fn summary(m: &BTreeMap<String, usize>) -> String {
 }
 
 /// Table radius of an atom, noting elements the table lacks.
-fn table_radius(element: &str, missing: &mut BTreeMap<String, usize>) -> f64 {
+pub(super) fn table_radius(element: &str, missing: &mut BTreeMap<String, usize>) -> f64 {
     bondi(element).unwrap_or_else(|| {
         *missing
             .entry(if element.is_empty() {
@@ -265,7 +277,7 @@ fn table_radius(element: &str, missing: &mut BTreeMap<String, usize>) -> f64 {
     })
 }
 
-fn note_missing(m: &mut Molecule, missing: &BTreeMap<String, usize>) {
+pub(super) fn note_missing(m: &mut Molecule, missing: &BTreeMap<String, usize>) {
     if !missing.is_empty() {
         m.warnings.push(format!(
             "no Bondi radius for {}: used {DEFAULT_RADIUS} Angstrom",
@@ -275,7 +287,7 @@ fn note_missing(m: &mut Molecule, missing: &BTreeMap<String, usize>) {
 }
 
 /// Whether a hetero residue is kept; counts it either way.
-fn keep_hetero(m: &mut Molecule, res: &str, o: &MoleculeOptions) -> bool {
+pub(super) fn keep_hetero(m: &mut Molecule, res: &str, o: &MoleculeOptions) -> bool {
     let water = WATERS.contains(&res);
     if water || !o.keep_hetatm {
         *m.left_out.entry(res.to_owned()).or_default() += 1;
@@ -352,7 +364,7 @@ fn read_pdb(r: &Reader<'_>, text: &str, o: &MoleculeOptions) -> Result<Molecule,
         {
             continue;
         }
-        if het && !keep_hetero(&mut m, &res, o) {
+        if (het || WATERS.contains(&res.as_str())) && !keep_hetero(&mut m, &res, o) {
             continue;
         }
         let element = line
@@ -361,11 +373,17 @@ fn read_pdb(r: &Reader<'_>, text: &str, o: &MoleculeOptions) -> Result<Molecule,
             .filter(|e| !e.is_empty() && e.chars().all(|c| c.is_ascii_alphabetic()))
             .map_or_else(|| element_from_name(name, het), capitalize);
         let radius = table_radius(&element, &mut missing);
+        let chain_id = match chain.trim() {
+            "" => line.get(72..76).unwrap_or("").trim().to_owned(),
+            c => c.to_owned(),
+        };
         m.atoms.push(Atom {
             pos,
             radius,
             element,
             residue: res,
+            chain: chain_id,
+            seq: line.get(22..26).unwrap_or("").trim().parse().unwrap_or(0),
             line: n,
         });
     }
@@ -429,6 +447,13 @@ fn read_pqr(r: &Reader<'_>, text: &str, o: &MoleculeOptions) -> Result<Molecule,
             radius,
             element,
             residue: res,
+            // serial, name, residue, [chain,] number, x, y, z, charge, radius.
+            chain: if k > 10 {
+                f[4].to_owned()
+            } else {
+                String::new()
+            },
+            seq: f[k - 6].parse().unwrap_or(0),
             line: n,
         });
     }
@@ -464,6 +489,8 @@ fn read_xyzr(r: &Reader<'_>, text: &str) -> Result<Molecule, InputError> {
             radius,
             element: String::new(),
             residue: String::new(),
+            chain: String::new(),
+            seq: 0,
             line: n,
         });
     }
@@ -506,6 +533,8 @@ fn read_xyz(r: &Reader<'_>, text: &str) -> Result<Molecule, InputError> {
             radius,
             element,
             residue: String::new(),
+            chain: String::new(),
+            seq: 0,
             line: n,
         });
     }
@@ -542,6 +571,8 @@ fn read_points(r: &Reader<'_>, text: &str) -> Result<Molecule, InputError> {
             radius: 0.0,
             element: String::new(),
             residue: String::new(),
+            chain: String::new(),
+            seq: 0,
             line: n,
         });
     }

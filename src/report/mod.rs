@@ -1,7 +1,10 @@
 //! Pictures of a run: the theta-psi atlas of the paper and the mapped sphere.
 //!
-//! Drawn with `plotters` (PNG through its bitmap backend, SVG through its SVG backend)
-//! and an embedded DejaVu Sans, so no system fonts are needed. Files are written under a
+//! Points are colored by a coordinate of the seed (viridis), or for molecule runs by
+//! the chain or named domain (a categorical palette with a legend) or the residue
+//! number (turbo, with a color bar) of the atom nearest the seed ([`domains`]). Drawn
+//! with `plotters` (PNG through its bitmap backend, SVG through its SVG backend) and an
+//! embedded DejaVu Sans, so no system fonts are needed. Files are written under a
 //! temporary name and renamed when whole.
 
 use std::fmt::Write as _;
@@ -13,6 +16,8 @@ use plotters::style::colors::colormaps::ViridisRGB;
 
 use crate::run::RunDir;
 use crate::trace::{read_seeds, SeedTable};
+
+pub mod domains;
 
 /// Errors of drawing.
 #[derive(Debug, thiserror::Error)]
@@ -41,7 +46,7 @@ fn register_font() {
 }
 
 /// What the atlas colors its points by.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[derive(Clone, Debug, PartialEq, Eq, Default)]
 pub enum ColorBy {
     /// The seed's position along the shape's main axis (principal component of the seed
     /// positions): regions of the shape get their own colors.
@@ -52,17 +57,303 @@ pub enum ColorBy {
     /// The seed's distance from the center: protrusions (arms, spikes, ears) light,
     /// the body dark.
     Distance,
+    /// Molecules: the chain of the atom nearest the seed.
+    Chain,
+    /// Molecules: the residue number of the atom nearest the seed, so that domains
+    /// (stretches of the sequence) get their own colors.
+    Residue,
+    /// Molecules: which of these named stretches of residues the atom nearest the seed
+    /// is in (a color per name, gray for the rest).
+    Domains(Vec<domains::Domain>),
+}
+
+impl ColorBy {
+    /// The `--color` name.
+    #[must_use]
+    pub fn name(&self) -> &'static str {
+        match self {
+            ColorBy::Axis => "axis",
+            ColorBy::Z => "z",
+            ColorBy::Distance => "distance",
+            ColorBy::Chain => "chain",
+            ColorBy::Residue => "residue",
+            ColorBy::Domains(_) => "domain",
+        }
+    }
+}
+
+/// The coloring `harmap run` draws its atlas with: residues for molecule formats that
+/// number them (PDB, mmCIF, PQR), else the main axis.
+#[must_use]
+pub fn default_coloring(attrs: &serde_json::Value) -> ColorBy {
+    match attrs.pointer("/input/format").and_then(|f| f.as_str()) {
+        Some("pdb" | "ent" | "cif" | "mmcif" | "pqr") => ColorBy::Residue,
+        _ => ColorBy::Axis,
+    }
+}
+
+/// What the colors of a picture mean, drawn under the atlas.
+enum Legend {
+    /// The caption says it all.
+    None,
+    /// A color bar of a colormap over the values `lo..=hi` of `label`, with ticks.
+    Bar {
+        label: String,
+        lo: i32,
+        hi: i32,
+        map: fn(f64) -> RGBColor,
+    },
+    /// A swatch and a name per category.
+    Categories(Vec<(String, RGBColor)>),
+}
+
+/// The color of each seed, the caption and the legend.
+struct Paint {
+    colors: Vec<RGBColor>,
+    /// A color whose points are drawn before all others (the rest, around highlighted
+    /// parts).
+    background: Option<RGBColor>,
+    caption: String,
+    legend: Legend,
+}
+
+/// Tableau 10: distinct hues of similar weight, for categories.
+const PALETTE: [(u8, u8, u8); 10] = [
+    (78, 121, 167),
+    (242, 142, 43),
+    (225, 87, 89),
+    (118, 183, 178),
+    (89, 161, 79),
+    (237, 201, 72),
+    (176, 122, 161),
+    (255, 157, 167),
+    (156, 117, 95),
+    (186, 176, 172),
+];
+
+/// Turbo (Mikhailov 2019, its polynomial approximation): a rainbow whose lightness runs
+/// smoothly, so neighbouring residue numbers look alike and distant ones differ in hue.
+fn turbo(x: f64) -> RGBColor {
+    let x = x.clamp(0.0, 1.0);
+    let poly = |c: [f64; 6]| {
+        let v = c[0] + x * (c[1] + x * (c[2] + x * (c[3] + x * (c[4] + x * c[5]))));
+        (v.clamp(0.0, 1.0) * 255.0).round() as u8
+    };
+    RGBColor(
+        poly([
+            0.135_721_38,
+            4.615_392_6,
+            -42.660_322_58,
+            132.131_082_34,
+            -152.942_393_96,
+            59.286_379_43,
+        ]),
+        poly([
+            0.091_402_61,
+            2.194_188_39,
+            4.842_966_58,
+            -14.185_033_33,
+            4.277_298_57,
+            2.829_566_04,
+        ]),
+        poly([
+            0.106_673_3,
+            12.641_946_08,
+            -60.582_048_36,
+            110.362_767_71,
+            -89.903_109_12,
+            27.348_249_73,
+        ]),
+    )
+}
+
+fn viridis(x: f64) -> RGBColor {
+    ViridisRGB::get_color(x as f32)
+}
+
+/// The colors of the seeds of `t` for `by`.
+fn paint(run: &RunDir, t: &SeedTable, by: &ColorBy) -> Result<Paint, crate::Error> {
+    let center: Option<DVec3> = run
+        .attrs()?
+        .get("center")
+        .and_then(|c| serde_json::from_value::<[f64; 3]>(c.clone()).ok())
+        .map(DVec3::from_array);
+    let continuous = |coord: Coord, caption: &str| Paint {
+        colors: color_values(t, coord, center)
+            .into_iter()
+            .map(viridis)
+            .collect(),
+        background: None,
+        caption: caption.to_owned(),
+        legend: Legend::None,
+    };
+    match by {
+        ColorBy::Axis => {
+            return Ok(continuous(
+                Coord::Axis,
+                "color: position of the seed along the shape's main axis",
+            ))
+        }
+        ColorBy::Z => return Ok(continuous(Coord::Z, "color: height (z) of the seed")),
+        ColorBy::Distance => {
+            return Ok(continuous(
+                Coord::Distance,
+                "color: distance of the seed from the center (light: far)",
+            ))
+        }
+        ColorBy::Chain | ColorBy::Residue | ColorBy::Domains(_) => {}
+    }
+    let m = domains::input_molecule(run, by.name())?;
+    let near = domains::nearest_atoms(&m, &t.position);
+    let refuse = |what: &str| {
+        ReportError::Unavailable(format!(
+            "{}: no atom of {} has {what} ({} format); use --color axis, z or distance",
+            run.root().display(),
+            shape_name(run),
+            m.format
+        ))
+    };
+    let category = |k: usize| {
+        let (r, g, b) = PALETTE[k % PALETTE.len()];
+        RGBColor(r, g, b)
+    };
+    match by {
+        ColorBy::Chain => {
+            if m.atoms.iter().all(|a| a.chain.is_empty()) {
+                return Err(refuse("a chain id").into());
+            }
+            // Chains in the order the file first names them.
+            let mut chains: Vec<&str> = Vec::new();
+            for a in &m.atoms {
+                if !chains.contains(&a.chain.as_str()) {
+                    chains.push(&a.chain);
+                }
+            }
+            let colors = near
+                .iter()
+                .map(|&i| {
+                    category(
+                        chains
+                            .iter()
+                            .position(|c| *c == m.atoms[i].chain)
+                            .unwrap_or(0),
+                    )
+                })
+                .collect();
+            let legend = chains
+                .iter()
+                .enumerate()
+                .map(|(k, c)| {
+                    let name = if c.is_empty() { "(none)" } else { c };
+                    (format!("chain {name}"), category(k))
+                })
+                .collect();
+            let repeat = if chains.len() > PALETTE.len() {
+                format!("; {} chains, so colors repeat", chains.len())
+            } else {
+                String::new()
+            };
+            Ok(Paint {
+                colors,
+                background: None,
+                caption: format!("color: chain of the atom nearest the seed{repeat}"),
+                legend: Legend::Categories(legend),
+            })
+        }
+        ColorBy::Domains(list) => {
+            if m.atoms.iter().all(|a| a.seq == 0) {
+                return Err(refuse("a residue number").into());
+            }
+            // One color per name, in the order given.
+            let mut names: Vec<&str> = Vec::new();
+            for d in list {
+                if !names.contains(&d.name.as_str()) {
+                    names.push(&d.name);
+                }
+            }
+            let rest = RGBColor(200, 200, 200);
+            let colors = near
+                .iter()
+                .map(|&i| {
+                    list.iter()
+                        .find(|d| d.contains(&m.atoms[i]))
+                        .and_then(|d| names.iter().position(|n| *n == d.name))
+                        .map_or(rest, category)
+                })
+                .collect();
+            let mut legend: Vec<(String, RGBColor)> = names
+                .iter()
+                .enumerate()
+                .map(|(k, n)| {
+                    let ranges: Vec<String> = list
+                        .iter()
+                        .filter(|d| d.name == *n)
+                        .map(domains::Domain::range)
+                        .collect();
+                    (format!("{n} {}", ranges.join(", ")), category(k))
+                })
+                .collect();
+            legend.push(("other".to_owned(), rest));
+            Ok(Paint {
+                colors,
+                background: Some(rest),
+                caption: "color: the domain of the atom nearest the seed".to_owned(),
+                legend: Legend::Categories(legend),
+            })
+        }
+        _ => {
+            let numbered: Vec<i32> = m.atoms.iter().map(|a| a.seq).filter(|&s| s != 0).collect();
+            let (Some(&lo), Some(&hi)) = (numbered.iter().min(), numbered.iter().max()) else {
+                return Err(refuse("a residue number").into());
+            };
+            let span = f64::from((hi - lo).max(1));
+            let colors = near
+                .iter()
+                .map(|&i| turbo(f64::from(m.atoms[i].seq - lo) / span))
+                .collect();
+            let chains = m
+                .atoms
+                .iter()
+                .map(|a| a.chain.as_str())
+                .collect::<std::collections::BTreeSet<_>>()
+                .len();
+            let scale = if chains > 1 {
+                format!(" ({chains} chains on one scale)")
+            } else {
+                String::new()
+            };
+            Ok(Paint {
+                colors,
+                background: None,
+                caption: format!("color: residue number of the atom nearest the seed{scale}"),
+                legend: Legend::Bar {
+                    label: "residue".to_owned(),
+                    lo,
+                    hi,
+                    map: turbo,
+                },
+            })
+        }
+    }
+}
+
+/// A coordinate of the seeds that colors them.
+#[derive(Clone, Copy)]
+enum Coord {
+    Axis,
+    Z,
+    Distance,
 }
 
 /// The coordinate the colors come from, scaled to [0, 1].
-fn color_values(t: &SeedTable, by: ColorBy, center: Option<DVec3>) -> Vec<f64> {
+fn color_values(t: &SeedTable, by: Coord, center: Option<DVec3>) -> Vec<f64> {
     let v: Vec<f64> = match by {
-        ColorBy::Z => t.position.iter().map(|p| p.z).collect(),
-        ColorBy::Distance => {
+        Coord::Z => t.position.iter().map(|p| p.z).collect(),
+        Coord::Distance => {
             let c = center.unwrap_or(DVec3::ZERO);
             t.position.iter().map(|p| (*p - c).length()).collect()
         }
-        ColorBy::Axis => {
+        Coord::Axis => {
             let n = t.position.len().max(1) as f64;
             let mean = t.position.iter().copied().sum::<DVec3>() / n;
             let mut c = glam::DMat3::ZERO;
@@ -107,10 +398,6 @@ fn principal_axis(c: glam::DMat3) -> DVec3 {
     } else {
         v
     }
-}
-
-fn color(x: f64) -> RGBColor {
-    ViridisRGB::get_color(x as f32)
 }
 
 /// The shape's name for titles.
@@ -205,19 +492,39 @@ fn staged_draw(
     Ok(())
 }
 
-/// Points of the atlas: (psi, theta) in degrees and a color value in [0, 1].
-fn atlas_points(t: &SeedTable, c: &[f64]) -> Vec<(f64, f64, f64)> {
-    (0..t.position.len())
+/// Points of the atlas: (psi, theta) in degrees and a color, in drawing order: points
+/// of the `background` color first; then points in sparse parts of the atlas before
+/// those in crowded one-degree cells, so that the small lobes into which the map
+/// squeezes thin parts of a shape are not hidden under the points around them.
+fn atlas_points(
+    t: &SeedTable,
+    c: &[RGBColor],
+    background: Option<RGBColor>,
+) -> Vec<(f64, f64, RGBColor)> {
+    let pts: Vec<(f64, f64, RGBColor)> = (0..t.position.len())
         .filter(|&i| t.stop[i] == 0 && t.theta[i].is_finite())
         .map(|i| (t.psi[i].to_degrees(), t.theta[i].to_degrees(), c[i]))
-        .collect()
+        .collect();
+    let cell = |&(psi, theta, _): &(f64, f64, RGBColor)| {
+        let x = ((psi + 180.0).floor() as usize).min(359);
+        let y = (theta.floor() as usize).min(179);
+        y * 360 + x
+    };
+    let mut count = vec![0u32; 360 * 180];
+    for p in &pts {
+        count[cell(p)] += 1;
+    }
+    let mut order: Vec<usize> = (0..pts.len()).collect();
+    order.sort_by_key(|&i| (Some(pts[i].2) != background, count[cell(&pts[i])]));
+    order.into_iter().map(|i| pts[i]).collect()
 }
 
 fn draw_atlas<DB: DrawingBackend>(
     root: &DrawingArea<DB, plotters::coord::Shift>,
     title: &str,
-    pts: &[(f64, f64, f64)],
+    pts: &[(f64, f64, RGBColor)],
     caption: &str,
+    legend: &Legend,
 ) -> Result<(), String> {
     let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
     root.fill(&WHITE).map_err(e)?;
@@ -248,16 +555,114 @@ fn draw_atlas<DB: DrawingBackend>(
     chart
         .draw_series(
             pts.iter()
-                .map(|&(x, y, c)| Circle::new((x, y), r, color(c).filled())),
+                .map(|&(x, y, c)| Circle::new((x, y), r, c.filled())),
         )
         .map_err(e)?;
-    root.draw(&Text::new(
-        caption.to_owned(),
-        (70, root.dim_in_pixel().1 as i32 - 18),
-        ("sans-serif", 13).into_font().color(&BLACK.mix(0.7)),
-    ))
-    .map_err(e)?;
+    let (w, h) = root.dim_in_pixel();
+    let (w, h) = (w as i32, h as i32);
+    let small = ("sans-serif", 13).into_font().color(&BLACK.mix(0.7));
+    root.draw(&Text::new(caption.to_owned(), (70, h - 18), small.clone()))
+        .map_err(e)?;
+    draw_legend(root, legend, (w - 30, h - 18)).map_err(e)?;
     root.present().map_err(e)?;
+    Ok(())
+}
+
+/// A round step (1, 2 or 5 times a power of ten) that cuts `span` into at most `n`
+/// pieces.
+fn nice_step(span: i32, n: i32) -> i32 {
+    let mut p = 1;
+    loop {
+        for m in [1, 2, 5] {
+            if span <= m * p * n {
+                return m * p;
+            }
+        }
+        p *= 10;
+    }
+}
+
+/// Draw `legend` in one row that ends at `right` (pixels, the text's top line).
+fn draw_legend<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+    legend: &Legend,
+    right: (i32, i32),
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let font = ("sans-serif", 13).into_font().color(&BLACK.mix(0.8));
+    let width = |s: &str| {
+        root.estimate_text_size(s, &font)
+            .map_or(7 * s.len() as i32, |(w, _)| w as i32)
+    };
+    let (x1, y) = right;
+    match legend {
+        Legend::None => {}
+        Legend::Bar { label, lo, hi, map } => {
+            // The bar over the line of the caption, its tick numbers on that line.
+            let (bar, top) = (300, y - 15);
+            let x0 = x1 - bar;
+            for k in 0..bar {
+                let c = map(f64::from(k) / f64::from(bar - 1));
+                root.draw(&Rectangle::new(
+                    [(x0 + k, top), (x0 + k + 1, top + 11)],
+                    c.filled(),
+                ))?;
+            }
+            root.draw(&Text::new(
+                label.clone(),
+                (x0 - 8 - width(label), top - 1),
+                font.clone(),
+            ))?;
+            let span = f64::from((hi - lo).max(1));
+            let at = |v: i32| x0 + (f64::from(v - lo) / span * f64::from(bar - 1)).round() as i32;
+            let step = nice_step(hi - lo, 6);
+            let mut ticks = vec![*lo];
+            let mut v = (lo.div_euclid(step) + 1) * step;
+            while v < *hi {
+                // Round ticks not crowding the ends.
+                if f64::from(v - lo) > 0.08 * span && f64::from(hi - v) > 0.08 * span {
+                    ticks.push(v);
+                }
+                v += step;
+            }
+            if hi > lo {
+                ticks.push(*hi);
+            }
+            let tick_font = ("sans-serif", 12).into_font().color(&BLACK.mix(0.8));
+            for v in ticks {
+                let x = at(v);
+                root.draw(&PathElement::new(
+                    [(x, top + 11), (x, top + 14)],
+                    BLACK.mix(0.6),
+                ))?;
+                let t = v.to_string();
+                root.draw(&Text::new(
+                    t.clone(),
+                    (x - width(&t) / 2, top + 15),
+                    tick_font.clone(),
+                ))?;
+            }
+        }
+        Legend::Categories(items) => {
+            // At most 12 shown; the rest are summed up.
+            let shown = &items[..items.len().min(12)];
+            let more =
+                (items.len() > shown.len()).then(|| format!("+{} more", items.len() - shown.len()));
+            let mut x = x1 - more.as_deref().map_or(0, |m| width(m) + 10);
+            let mut at = Vec::new();
+            for (name, _) in shown.iter().rev() {
+                x -= width(name) + 26;
+                at.push(x);
+            }
+            at.reverse();
+            for ((name, c), &x) in shown.iter().zip(&at) {
+                root.draw(&Rectangle::new([(x, y), (x + 12, y + 12)], c.filled()))?;
+                root.draw(&Text::new(name.clone(), (x + 16, y), font.clone()))?;
+            }
+            if let Some(m) = more {
+                root.draw(&Text::new(m.clone(), (x1 - width(&m), y), font.clone()))?;
+            }
+        }
+    }
     Ok(())
 }
 
@@ -275,13 +680,13 @@ fn draw_sphere<DB: DrawingBackend>(
     root: &DrawingArea<DB, plotters::coord::Shift>,
     title: &str,
     t: &SeedTable,
-    c: &[f64],
+    c: &[RGBColor],
 ) -> Result<(), String> {
     let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
     root.fill(&WHITE).map_err(e)?;
     let root = root.titled(title, ("sans-serif", 20)).map_err(e)?;
     let panels = root.split_evenly((1, 4));
-    let pts: Vec<(DVec3, f64)> = (0..t.position.len())
+    let pts: Vec<(DVec3, RGBColor)> = (0..t.position.len())
         .filter_map(|i| t.sphere(i).map(|s| (s, c[i])))
         .collect();
     for (area, (name, view, sx, sy)) in panels.iter().zip(views()) {
@@ -301,14 +706,15 @@ fn draw_sphere<DB: DrawingBackend>(
             ))
             .map_err(e)?;
         // Front hemisphere only, far points first.
-        let mut front: Vec<&(DVec3, f64)> = pts.iter().filter(|(s, _)| s.dot(view) > 0.0).collect();
+        let mut front: Vec<&(DVec3, RGBColor)> =
+            pts.iter().filter(|(s, _)| s.dot(view) > 0.0).collect();
         front.sort_by(|a, b| a.0.dot(view).total_cmp(&b.0.dot(view)));
         let r = if front.len() > 20_000 { 1 } else { 2 };
         chart
             .draw_series(
                 front
                     .iter()
-                    .map(|(s, v)| Circle::new((s.dot(sx), s.dot(sy)), r, color(*v).filled())),
+                    .map(|(s, v)| Circle::new((s.dot(sx), s.dot(sy)), r, v.filled())),
             )
             .map_err(e)?;
     }
@@ -317,15 +723,11 @@ fn draw_sphere<DB: DrawingBackend>(
 
 /// Draw the theta-psi atlas of a traced run to `dest` (.png or .svg), or with `sphere`
 /// the mapped sphere from four viewpoints. Returns the number of points drawn.
-pub fn atlas(run: &RunDir, dest: &Path, sphere: bool, by: ColorBy) -> Result<usize, crate::Error> {
+pub fn atlas(run: &RunDir, dest: &Path, sphere: bool, by: &ColorBy) -> Result<usize, crate::Error> {
     let t = read_seeds(run)?;
-    let center: Option<DVec3> = run
-        .attrs()?
-        .get("center")
-        .and_then(|c| serde_json::from_value::<[f64; 3]>(c.clone()).ok())
-        .map(DVec3::from_array);
-    let c = color_values(&t, by, center);
-    let pts = atlas_points(&t, &c);
+    let paint = paint(run, &t, by)?;
+    let c = &paint.colors;
+    let pts = atlas_points(&t, c, paint.background);
     if pts.is_empty() {
         return Err(ReportError::Unavailable(format!(
             "{}: no seed reached the center; nothing to draw",
@@ -334,24 +736,19 @@ pub fn atlas(run: &RunDir, dest: &Path, sphere: bool, by: ColorBy) -> Result<usi
         .into());
     }
     let title = title(run, &t);
-    let caption = match by {
-        ColorBy::Axis => "color: position of the seed along the shape's main axis",
-        ColorBy::Z => "color: height (z) of the seed",
-        ColorBy::Distance => "color: distance of the seed from the center (light: far)",
-    };
     if sphere {
         staged_draw(
             dest,
             (1600, 470),
-            |root| draw_sphere(&root, &title, &t, &c),
-            |root| draw_sphere(&root, &title, &t, &c),
+            |root| draw_sphere(&root, &title, &t, c),
+            |root| draw_sphere(&root, &title, &t, c),
         )?;
     } else {
         staged_draw(
             dest,
             (1200, 680),
-            |root| draw_atlas(&root, &title, &pts, caption),
-            |root| draw_atlas(&root, &title, &pts, caption),
+            |root| draw_atlas(&root, &title, &pts, &paint.caption, &paint.legend),
+            |root| draw_atlas(&root, &title, &pts, &paint.caption, &paint.legend),
         )?;
     }
     Ok(pts.len())
