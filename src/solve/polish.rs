@@ -11,21 +11,19 @@
 //! Plain Gauss-Seidel does: it only averages neighbours, so in a region whose border
 //! values are right it converges to relative accuracy, however small the values. And in
 //! a thin arm with Dirichlet walls it converges fast (the walls make the local problem
-//! well conditioned). So after the solve, the unknowns with |u| below `threshold` (the
+//! well conditioned). So after the solve, the unknowns with u below `threshold` (negatives too; the
 //! region, fixed when the polish starts) are relaxed by red-black SOR with the rest held
 //! fixed, until no value changes by more than `rel_change` of itself in a sweep.
 //!
-//! Where the solve's value is below a thousandth of `threshold` it is mostly error (of
-//! either sign, and up to 1e10 times the true value), so the polish starts those voxels
-//! from 0 instead: Gauss-Seidel then fills them in from the region's border, and the
-//! relative error to remove is at most 1 rather than 1e10 or more. How far it has to
-//! fall decides the number of sweeps, not how small the values are.
+//! The solve's values in the region are mostly error (of either sign, and up to 1e10
+//! times the true value), so the polish starts them from 0 instead: Gauss-Seidel then
+//! fills them in from the region's border, and the relative error to remove is at most
+//! 1 rather than 1e10 or more. Values below [`FLOOR`] count as converged.
 //!
 //! Out of core, block by block: a pass visits the blocks that hold region voxels in
 //! eight colour phases (the parity of the block index along each axis); the blocks of a
-//! phase are relaxed in parallel, each read with a one-voxel halo and swept up to
-//! twice its edge times (about what it takes news to cross it), or until it is
-//! converged against that halo. Blocks of one phase never touch each other's voxels or
+//! phase are relaxed in parallel, each read with a one-voxel halo and swept a few times,
+//! or until it is converged against that halo. Blocks of one phase never touch each other's voxels or
 //! halos, so the result is the same for any thread count and budget. A block is
 //! visited again while it has not converged, or when a neighbour whose face values it
 //! reads has changed. Memory: one bit per voxel of the blocks that hold the region,
@@ -33,6 +31,7 @@
 
 use crate::grid::{BlockStore, GridError};
 use crate::math::Idx3;
+use crate::progress::Progress;
 use crate::voxelize::labels::INTERIOR;
 
 /// What polishing did.
@@ -61,13 +60,14 @@ pub struct PolishReport {
 /// Settings of [`polish`].
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PolishOptions {
-    /// Relax unknowns with |u| below this.
+    /// Relax unknowns with u below this (negative ones too: the maximum principle rules them out).
     pub threshold: f64,
     /// Stop when no value changes by more than this fraction of itself in a sweep.
     pub rel_change: f64,
     /// Sweeps allowed for any one block (over all passes).
     pub max_sweeps: u64,
-    /// Over-relaxation factor.
+    /// Over-relaxation factor. 1.9, near the optimum of a region 60 voxels across,
+    /// stalled down thin arms (cactus10k, the test tube); 1.6 converges on both.
     pub omega: f64,
 }
 
@@ -81,6 +81,18 @@ impl Default for PolishOptions {
         }
     }
 }
+
+/// Sweeps of a block per visit. Few: a block swept to convergence against a halo
+/// that is still moving wastes the sweeps (non-overlapping blocks have no coarse
+/// space to carry news), so the blocks take turns, as one global red-black SOR would.
+const SWEEPS_PER_VISIT: u64 = 8;
+
+/// Values below this count as converged whatever their relative change. The tracer's
+/// directions hold down to gradients of about 1e-22 (docs/trace.md), so relative
+/// accuracy below it buys nothing; and far below it, in the deepest pockets of a large
+/// molecule, u underflows into subnormal numbers, whose relative precision is coarse
+/// enough (5e-4 at 1e-320) to keep the relative change above any tolerance forever.
+const FLOOR: f64 = 1e-24;
 
 /// The region of one block: a bit per voxel of the block, C order.
 struct Region {
@@ -117,6 +129,7 @@ pub fn polish(
     bytes: u64,
     workers: usize,
     stop: &(dyn Fn() -> bool + Sync),
+    progress: &dyn Progress,
 ) -> Result<PolishReport, GridError> {
     let spec = u.spec().clone();
     let blocks = spec.block_indices();
@@ -127,7 +140,7 @@ pub fn polish(
         for (o, (&x, &m)) in uv.iter().zip(&mv).enumerate() {
             if m == INTERIOR {
                 negative += u64::from(x < 0.0);
-                if x.abs() < opts.threshold {
+                if x < opts.threshold {
                     bits[o / 64] |= 1 << (o % 64);
                     count += 1;
                     region_negative += u64::from(x < 0.0);
@@ -169,12 +182,19 @@ pub fn polish(
     let lin = |b: Idx3| spec.block_linear(b) as usize;
     let mut active: Vec<bool> = regions.iter().map(Option::is_some).collect();
     let mut sweeps = vec![0u64; regions.len()];
-    let per_visit = 2 * spec.chunk.iter().copied().max().unwrap_or(1);
+    let per_visit = SWEEPS_PER_VISIT;
     while active.iter().any(|&a| a) {
         if stop() {
             report.interrupted = true;
             break;
         }
+        progress.message(&format!(
+            "solve: polishing {voxels} tiny values  pass {}, {} of {} blocks to visit, largest change {:.1e}",
+            report.passes + 1,
+            active.iter().filter(|&&a| a).count(),
+            report.blocks,
+            report.last_change
+        ));
         report.passes += 1;
         let mut next = vec![false; regions.len()];
         let mut last = 0.0f64;
@@ -225,8 +245,7 @@ pub fn polish(
 
 /// Relax the region voxels of block `b` against its one-voxel halo until a sweep moves
 /// no value by more than `rel_change` of itself (or `limit` sweeps), and write the
-/// block back. On the `first` visit, values below a thousandth of the threshold start
-/// from 0.
+/// block back. On the `first` visit, the region's values start from 0.
 fn relax_block(
     u: &dyn BlockStore<f64>,
     b: Idx3,
@@ -267,12 +286,8 @@ fn relax_block(
         }
     }
     if first {
-        let floor = opts.threshold * 1e-3;
         for &h in lists.iter().flatten() {
-            let v = &mut blk.data[h as usize];
-            if v.abs() < floor {
-                *v = 0.0;
-            }
+            blk.data[h as usize] = 0.0;
         }
     }
     let start: Vec<f64> = on_face.iter().map(|&(h, _)| blk.data[h as usize]).collect();
@@ -295,7 +310,7 @@ fn relax_block(
                 let v = (1.0 - w) * old + w * (s / 6.0);
                 d[h] = v;
                 let scale = v.abs().max(old.abs());
-                if scale > 0.0 {
+                if scale > FLOOR {
                     change = change.max((v - old).abs() / scale);
                 }
             }
@@ -310,7 +325,7 @@ fn relax_block(
     for (&(h, faces), &old) in on_face.iter().zip(&start) {
         let v = d[h as usize];
         let scale = v.abs().max(old.abs());
-        if scale > 0.0 && (v - old).abs() > opts.rel_change * scale {
+        if scale > FLOOR && (v - old).abs() > opts.rel_change * scale {
             for (f, moved) in visit.face_moved.iter_mut().enumerate() {
                 *moved |= faces >> f & 1 == 1;
             }
@@ -389,7 +404,16 @@ mod tests {
         let mut results = Vec::new();
         for chunk in [4, 16, 64] {
             let (spec, u, mask) = tube(chunk);
-            let rep = polish(&u, &mask, &opts, 1 << 30, 2, &|| false).unwrap();
+            let rep = polish(
+                &u,
+                &mask,
+                &opts,
+                1 << 30,
+                2,
+                &|| false,
+                &crate::progress::Silent,
+            )
+            .unwrap();
             assert!(
                 rep.negative[1] == 0 && rep.last_change < opts.rel_change,
                 "{rep:?}"
@@ -404,7 +428,7 @@ mod tests {
             }
         }
         let (spec, u, mask) = tube(4);
-        let rep = polish(&u, &mask, &opts, 1, 1, &|| false).unwrap();
+        let rep = polish(&u, &mask, &opts, 1, 1, &|| false, &crate::progress::Silent).unwrap();
         assert!(rep.blocks >= 6 && rep.passes > 1, "{rep:?}");
         assert_eq!(all_values(&spec, &u), results[0]);
     }
@@ -451,7 +475,16 @@ mod tests {
         })
         .unwrap();
         let opts = PolishOptions::default();
-        let rep = polish(&u, &mask, &opts, 1 << 30, 2, &|| false).unwrap();
+        let rep = polish(
+            &u,
+            &mask,
+            &opts,
+            1 << 30,
+            2,
+            &|| false,
+            &crate::progress::Silent,
+        )
+        .unwrap();
         assert!(rep.negative[0] > 0 && rep.negative[1] == 0, "{rep:?}");
         assert!(rep.last_change < opts.rel_change, "{rep:?}");
         // Down the tube's axis the values fall by the same factor per voxel (the tube's
