@@ -42,6 +42,7 @@ fn summary(attrs: &Value) -> Value {
             "genus": v["genus"],
             "components": v["components"],
             "cavities_filled": v["cavities_filled"],
+            "probe_cavities": v.get("probe_cavities").cloned().unwrap_or(json!(0)),
             "closing_voxels": v.get("closing_voxels").cloned().unwrap_or(json!(0)),
             "handles": v.get("handles").cloned().unwrap_or(json!([])),
             "center_depth_voxels": v["center_depth"],
@@ -143,6 +144,16 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
             "topology: {} piece(s), genus {}, Euler characteristic {}, {} cavities filled ({} voxels), inside by {}",
             v["components"], v["genus"], v["euler_characteristic"], v["cavities_filled"], v["cavity_voxels"], v["inside_rule"].as_str().unwrap_or("?")
         )?;
+        if let Some(n) = v
+            .get("probe_cavities")
+            .and_then(Value::as_u64)
+            .filter(|&n| n > 0)
+        {
+            writeln!(
+                out,
+                "ses:      {n} cavities with room for a probe that cannot get in from the solvent, left solid"
+            )?;
+        }
         if let Some(n) = v
             .get("closing_voxels")
             .and_then(Value::as_u64)
