@@ -16,7 +16,11 @@ For each molecule:
    on a grid of the same spacing whose points coincide with harmap's voxel centers
    (APBS's dime is 32k+1, so its grid is a little larger and offset by whole voxels);
 3. enclosed voids are filled on APBS's side as harmap fills them (scipy
-   `binary_fill_holes`), and the two solids are compared on the voxels near the molecule
+   `binary_fill_holes`, whose default structure makes the background 6-connected, as in
+   harmap's fill; APBS keeps every cavity a probe fits in, reachable or not, where
+   harmap leaves the unreachable ones solid, so on APBS's side this fill is all that
+   closes them), and
+   the two solids are compared on the voxels near the molecule
    (inside either solid, or within 2 voxels of one), and on those of them more than one
    voxel from either surface.
 

@@ -134,17 +134,45 @@ fn shared_molecules_and_their_edge_cases() {
     };
     let d = tempfile::tempdir().unwrap();
     // The hollow C60 cage: its occupancy and B-factor columns hold inf; the cavity is
-    // filled.
-    let out = d.path().join("c60.harmap");
-    let o = voxelize(&dir.join("fullerene.pdb.gz"), &out, &["--spacing", "0.5"]);
-    ok(&o);
-    let attrs = harmap::run::RunDir::open(&out).unwrap().attrs().unwrap();
-    let filled = attrs
-        .pointer("/stages/voxelize/result/cavities_filled")
-        .unwrap()
-        .as_u64()
-        .unwrap();
+    // filled. In the SES, the cage's inside has room for a probe that cannot get in: a
+    // cavity of the probe-center space, solid from the start; in the vdW solid, an
+    // enclosed void the voxel fill fills.
+    let result = |surface: &str| {
+        let out = d.path().join(format!("c60-{surface}.harmap"));
+        let o = voxelize(
+            &dir.join("fullerene.pdb.gz"),
+            &out,
+            &["--spacing", "0.5", "--surface", surface],
+        );
+        ok(&o);
+        let attrs = harmap::run::RunDir::open(&out).unwrap().attrs().unwrap();
+        let n = |k: &str| {
+            attrs
+                .pointer(&format!("/stages/voxelize/result/{k}"))
+                .and_then(serde_json::Value::as_u64)
+                .unwrap()
+        };
+        (
+            n("probe_cavities"),
+            n("cavities_filled"),
+            solid(&out),
+            attrs,
+        )
+    };
+    let (probe_cavities, filled, ses, attrs) = result("ses");
+    assert_eq!(
+        (probe_cavities, filled),
+        (1, 0),
+        "the cage's inside is a probe cavity"
+    );
+    let (probe_cavities, filled, vdw, _) = result("vdw");
+    assert_eq!(probe_cavities, 0);
     assert!(filled >= 1, "the cage's cavity was not filled");
+    let inside = |s: &[bool]| s.iter().filter(|&&b| b).count();
+    assert!(
+        inside(&ses) > inside(&vdw),
+        "the SES fills the cage's crevices too"
+    );
     assert_eq!(
         attrs.pointer("/grid/unit").and_then(|u| u.as_str()),
         Some("angstrom")
@@ -232,6 +260,45 @@ fn pdb_and_pqr_of_one_molecule_give_the_same_labels() {
         crate::common::read_labels(&a).1 == crate::common::read_labels(&b).1,
         "labels differ"
     );
+}
+
+/// adk_open at 0.5 Angstrom: a pocket of about 1,000 voxels behind a mouth that passes a
+/// probe of 1.10 Angstrom, not 1.4 (atoms ND2 ASN 102, CD LYS 97, HB3 ASN 190), whose
+/// probe balls come within a voxel of the solvent's. It is a cavity of the
+/// probe-center space, so solid; the voxel fill alone saw it open, and a tunnel (genus
+/// 1) through its mouth.
+#[test]
+fn adk_open_pocket_behind_a_narrow_mouth_is_solid() {
+    let Some(dir) = crate::common::shared_data("molecules") else {
+        eprintln!("skipped: ../shared/data/molecules not found");
+        return;
+    };
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("adk.harmap");
+    // Genus 0 now: no --allow-genus (one stray voxel needs --keep-largest).
+    ok(&voxelize(
+        &dir.join("adk_open.pqr"),
+        &out,
+        &["--spacing", "0.5", "--keep-largest"],
+    ));
+    let attrs = harmap::run::RunDir::open(&out).unwrap().attrs().unwrap();
+    let cavities = attrs
+        .pointer("/stages/voxelize/result/probe_cavities")
+        .and_then(serde_json::Value::as_u64)
+        .unwrap();
+    assert!(cavities >= 1, "{cavities}");
+    let (spec, labels) = crate::common::read_labels(&out);
+    let at = |x: f64, y: f64, z: f64| {
+        let v = spec
+            .nearest_voxel(harmap::math::Vec3::new(x, y, z))
+            .unwrap();
+        let s = spec.shape;
+        labels[((v[0] * s[1] + v[1]) * s[2] + v[2]) as usize]
+    };
+    // The pocket's deepest probe center, and its middle.
+    for p in [(1.77, 25.65, 7.25), (1.63, 24.82, 6.78)] {
+        assert!((1..=3).contains(&at(p.0, p.1, p.2)), "{p:?} is not solid");
+    }
 }
 
 #[test]

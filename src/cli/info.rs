@@ -43,6 +43,7 @@ fn summary(attrs: &Value) -> Value {
             "genus": v["genus"],
             "components": v["components"],
             "cavities_filled": v["cavities_filled"],
+            "probe_cavities": v.get("probe_cavities").cloned().unwrap_or(json!(0)),
             "closing_voxels": v.get("closing_voxels").cloned().unwrap_or(json!(0)),
             "handles": v.get("handles").cloned().unwrap_or(json!([])),
             "center_depth_voxels": v["center_depth"],
@@ -150,6 +151,16 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
             .and_then(|t| harmap::voxelize::probe_summary(&t))
         {
             writeln!(out, "probe:    {p}")?;
+        }
+        if let Some(n) = v
+            .get("probe_cavities")
+            .and_then(Value::as_u64)
+            .filter(|&n| n > 0)
+        {
+            writeln!(
+                out,
+                "ses:      {n} cavities with room for a probe that cannot get in from the solvent, left solid"
+            )?;
         }
         if let Some(n) = v
             .get("closing_voxels")

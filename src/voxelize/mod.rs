@@ -18,6 +18,7 @@ mod euler;
 mod from_volume;
 mod grid_fit;
 mod scanline;
+pub mod solvent;
 pub mod spheres;
 mod standard;
 
@@ -178,6 +179,10 @@ pub struct VoxelizeReport {
     pub cavities_filled: u64,
     /// Voxels added by filling cavities.
     pub cavity_voxels: u64,
+    /// SES: cavities of the probe-center space (room for a probe that cannot get in
+    /// from the solvent), whose probes were left out, so they are solid already.
+    #[serde(default)]
+    pub probe_cavities: u64,
     /// Pieces removed by `keep_largest`, and their voxels.
     pub pieces_removed: u64,
     /// Voxels removed by `keep_largest`.
@@ -451,6 +456,7 @@ pub fn voxelize(
     let solid = &*solid;
 
     // 1. Solid occupancy.
+    let mut probe_cavities = 0;
     match (shape, rule) {
         (Shape::Mesh(mesh), Some(rule)) => {
             let unclosed = scanline::mesh_solid(mesh, rule, solid, w_solid, progress)?;
@@ -464,7 +470,9 @@ pub fn voxelize(
             from_volume::volume_solid(v, opts.padding, solid, w_solid, progress)?;
         }
         (Shape::Molecule(m), _) => {
-            spheres::molecule_solid(m, opts.surface, opts.probe, solid, w_solid, progress)?;
+            let cav =
+                spheres::molecule_solid(m, opts.surface, opts.probe, solid, w_solid, progress)?;
+            probe_cavities = cav.count;
         }
         (Shape::Mesh(_), None) => unreachable!("meshes always get a rule"),
     }
@@ -691,6 +699,7 @@ pub fn voxelize(
         genus,
         cavities_filled: cavities.len() as u64,
         cavity_voxels,
+        probe_cavities,
         pieces_removed,
         removed_voxels,
         closing_voxels,

@@ -9,15 +9,21 @@
 //!   Probe centers range over the SAS surface continuously, not over grid points: each
 //!   atom's SAS sphere is sampled densely (spacing `SAMPLE` Angstrom, far below the
 //!   voxel), the samples buried in other SAS balls are dropped, and a k-d tree of the
-//!   rest answers "nearest probe center" per voxel.
+//!   rest answers "nearest probe center" per voxel. Samples on the walls of cavities a
+//!   probe cannot reach from the solvent are no probe centers ([`super::solvent`] finds
+//!   them first, in one pass over the atoms), and voxels outside the SAS solid whose
+//!   nearest sample is on such a wall, inside a cavity, are solid.
 //!
 //! A block needs the atoms within its box grown by the largest radius plus two probe
 //! radii, and the probe centers within one probe radius of the box: nothing else.
+
+use std::collections::HashMap;
 
 use glam::DVec3;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use serde::{Deserialize, Serialize};
 
+use super::solvent::{solvent_access, Access, Cavities};
 use crate::grid::{BlockStore, GridError, GridSpec};
 use crate::input::molecule::Molecule;
 use crate::math::Idx3;
@@ -128,7 +134,89 @@ fn sphere_points(n: usize) -> Vec<DVec3> {
         .collect()
 }
 
-/// Write the solid of `mol` (1 inside, 0 outside) into `solid`, block by block.
+/// The balls of a molecule with what the passes share: the atom grid and, for the SES,
+/// the unit-sphere samples per SAS radius.
+pub struct Balls {
+    /// Atom centers.
+    pub centers: Vec<DVec3>,
+    /// Atom radii.
+    pub radii: Vec<f64>,
+    /// Probe radius.
+    pub probe: f64,
+    rmax: f64,
+    grid: AtomGrid,
+    spheres: HashMap<u64, Vec<DVec3>>,
+}
+
+impl Balls {
+    /// Balls at `centers` of `radii`, with unit-sphere samples for SAS spheres of
+    /// `probe`.
+    #[must_use]
+    pub fn new(centers: Vec<DVec3>, radii: Vec<f64>, probe: f64) -> Self {
+        let mut b = Self::without_samples(centers, radii, probe);
+        for &r in &b.radii {
+            let big = r + probe;
+            let n = ((4.0 * std::f64::consts::PI * big * big) / (SAMPLE * SAMPLE)).ceil() as usize;
+            b.spheres
+                .entry(big.to_bits())
+                .or_insert_with(|| sphere_points(n.max(12)));
+        }
+        b
+    }
+
+    fn without_samples(centers: Vec<DVec3>, radii: Vec<f64>, probe: f64) -> Self {
+        let rmax = radii.iter().copied().fold(0.0, f64::max);
+        let grid = AtomGrid::new(&centers, (rmax + probe).max(1.0));
+        Self {
+            centers,
+            radii,
+            probe,
+            rmax,
+            grid,
+            spheres: HashMap::new(),
+        }
+    }
+
+    /// Radius of atom `i`'s SAS ball.
+    #[must_use]
+    pub fn sas_radius(&self, i: usize) -> f64 {
+        self.radii[i] + self.probe
+    }
+
+    /// Unit-sphere samples of atom `i`'s SAS sphere (SES only).
+    #[must_use]
+    pub fn unit_sphere(&self, i: usize) -> &[DVec3] {
+        &self.spheres[&self.sas_radius(i).to_bits()]
+    }
+
+    /// The atoms other than `i` whose SAS balls meet atom `i`'s, into `out`.
+    pub fn sas_neighbours(&self, i: usize, out: &mut Vec<u32>) {
+        let (c, big) = (self.centers[i], self.sas_radius(i));
+        let reach = big + self.rmax + self.probe;
+        self.grid
+            .near(c - DVec3::splat(reach), c + DVec3::splat(reach), out);
+        out.retain(|&j| {
+            j as usize != i
+                && (self.centers[j as usize] - c).length() < big + self.sas_radius(j as usize)
+        });
+        // Deepest first: those hide most of the sphere, so `buried` stops sooner.
+        let depth = |j: u32| (self.centers[j as usize] - c).length() - self.sas_radius(j as usize);
+        out.sort_by(|&a, &b| depth(a).total_cmp(&depth(b)).then(a.cmp(&b)));
+    }
+
+    /// Whether `q` lies inside one of the SAS balls of `others`.
+    #[must_use]
+    pub fn buried(&self, q: DVec3, others: &[u32]) -> bool {
+        others.iter().any(|&j| {
+            let rj = self.sas_radius(j as usize);
+            (q - self.centers[j as usize]).length_squared() < rj * rj * (1.0 - 1e-12)
+        })
+    }
+}
+
+/// Write the solid of `mol` (1 inside, 0 outside) into `solid`, block by block. For the
+/// SES, returns the cavities of the probe-center space whose probes were left out (see
+/// [`super::solvent`]).
 pub fn molecule_solid(
     mol: &Molecule,
     surface: MolSurface,
@@ -136,54 +224,49 @@ pub fn molecule_solid(
     solid: &dyn BlockStore<u8>,
     workers: usize,
     progress: &dyn Progress,
-) -> Result<(), GridError> {
+) -> Result<Cavities, GridError> {
     let spec = solid.spec().clone();
     let centers: Vec<DVec3> = mol.atoms.iter().map(|a| a.pos).collect();
     let radii: Vec<f64> = mol.atoms.iter().map(|a| a.radius).collect();
-    let rmax = radii.iter().copied().fold(0.0, f64::max);
     let grow = match surface {
         MolSurface::Vdw => 0.0,
         MolSurface::Sas | MolSurface::Ses => probe,
     };
-    let grid = AtomGrid::new(&centers, (rmax + probe).max(1.0));
-    // Unit-sphere samples per atom size, shared.
-    let mut spheres: std::collections::HashMap<u64, Vec<DVec3>> = std::collections::HashMap::new();
-    if surface == MolSurface::Ses {
-        for &r in &radii {
-            let big = r + probe;
-            let n = ((4.0 * std::f64::consts::PI * big * big) / (SAMPLE * SAMPLE)).ceil() as usize;
-            spheres
-                .entry(big.to_bits())
-                .or_insert_with(|| sphere_points(n.max(12)));
-        }
-    }
+    let (balls, access, cavities) = if surface == MolSurface::Ses {
+        let balls = Balls::new(centers, radii, probe);
+        let (access, cavities) = solvent_access(&balls, workers, progress);
+        (balls, access, cavities)
+    } else {
+        let balls = Balls::without_samples(centers, radii, probe);
+        (balls, Vec::new(), Cavities::default())
+    };
     let blocks = spec.block_indices();
     progress.start("voxelize: molecular solid", blocks.len() as u64);
     crate::parallel::map_bounded(&blocks, workers, |&b| {
-        let out = block_solid(
-            &spec, b, &centers, &radii, &grid, grow, surface, probe, rmax, &spheres,
-        );
+        let out = block_solid(&spec, b, &balls, &access, grow, surface);
         solid.write_block(b, &out)?;
         progress.advance(1);
         Ok::<_, GridError>(())
     })?;
     progress.finish();
-    Ok(())
+    Ok(cavities)
 }
 
-#[allow(clippy::too_many_arguments)]
 fn block_solid(
     spec: &GridSpec,
     b: Idx3,
-    centers: &[DVec3],
-    radii: &[f64],
-    grid: &AtomGrid,
+    balls: &Balls,
+    access: &[Access],
     grow: f64,
     surface: MolSurface,
-    probe: f64,
-    rmax: f64,
-    spheres: &std::collections::HashMap<u64, Vec<DVec3>>,
 ) -> Vec<u8> {
+    let (centers, radii, probe, rmax, grid) = (
+        &balls.centers,
+        &balls.radii,
+        balls.probe,
+        balls.rmax,
+        &balls.grid,
+    );
     let st = spec.block_start(b);
     let sh = spec.block_shape(b);
     let corner = |v: [u64; 3]| spec.voxel_center(v);
@@ -200,9 +283,11 @@ fn block_solid(
     if near.is_empty() {
         return out;
     }
-    // Probe centers within one probe radius of the block (SES only).
-    let tree = if surface == MolSurface::Ses {
-        let mut pts: Vec<[f64; 3]> = Vec::new();
+    // Probe centers within one probe radius of the block (SES only): free samples of
+    // the SAS spheres that face the solvent; and those on cavity walls, which tell the
+    // voxels in a cavity's probe-center space.
+    let (mut pts, mut cav): (Vec<[f64; 3]>, Vec<[f64; 3]>) = (Vec::new(), Vec::new());
+    if surface == MolSurface::Ses {
         let mut others = Vec::new();
         let (plo, phi) = (lo - DVec3::splat(probe), hi + DVec3::splat(probe));
         let mut cand = Vec::new();
@@ -212,41 +297,43 @@ fn block_solid(
             &mut cand,
         );
         for &i in &cand {
-            let (c, big) = (centers[i as usize], radii[i as usize] + probe);
+            let i = i as usize;
+            let (c, big) = (centers[i], balls.sas_radius(i));
             // The sphere must come within the grown box.
             let nearest = c.clamp(plo, phi);
             if (nearest - c).length() > big {
                 continue;
             }
-            grid.near(
-                c - DVec3::splat(big + rmax + probe),
-                c + DVec3::splat(big + rmax + probe),
-                &mut others,
-            );
-            others.retain(|&j| {
-                j != i && (centers[j as usize] - c).length() < big + radii[j as usize] + probe
-            });
-            for u in &spheres[&big.to_bits()] {
+            balls.sas_neighbours(i, &mut others);
+            for (k, u) in balls.unit_sphere(i).iter().enumerate() {
                 let q = c + big * *u;
                 if q.cmplt(plo).any() || q.cmpgt(phi).any() {
                     continue;
                 }
-                let buried = others.iter().any(|&j| {
-                    let rj = radii[j as usize] + probe;
-                    (q - centers[j as usize]).length_squared() < rj * rj * (1.0 - 1e-12)
-                });
-                if !buried {
-                    pts.push(q.to_array());
+                if !balls.buried(q, &others) {
+                    if access[i].has(k) {
+                        pts.push(q.to_array());
+                    } else {
+                        cav.push(q.to_array());
+                    }
                 }
             }
         }
-        Some(pts)
-    } else {
-        None
+    }
+    let tree = (!pts.is_empty()).then(|| ImmutableKdTree::<f64, 3>::new_from_slice(&pts));
+    // Cavities are small: only voxels in the box of their walls grown by the probe ask.
+    let cav_box = cav.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(a, b), &q| (a.min(DVec3::from(q)), b.max(DVec3::from(q))),
+    );
+    let cav_box = (
+        cav_box.0 - DVec3::splat(probe),
+        cav_box.1 + DVec3::splat(probe),
+    );
+    let cav = (!cav.is_empty()).then(|| ImmutableKdTree::<f64, 3>::new_from_slice(&cav));
+    let nearest = |t: &ImmutableKdTree<f64, 3>, p: DVec3| {
+        t.nearest_one::<SquaredEuclidean>(&p.to_array()).distance
     };
-    let tree = tree
-        .filter(|p| !p.is_empty())
-        .map(|p| ImmutableKdTree::<f64, 3>::new_from_slice(&p));
     let probe2 = probe * probe;
     let mut k = 0;
     for z in 0..sh[0] {
@@ -271,14 +358,20 @@ fn block_solid(
                 out[k] = u8::from(match surface {
                     MolSurface::Vdw => in_vdw,
                     MolSurface::Sas => in_grown,
-                    MolSurface::Ses => {
-                        in_vdw
-                            || (in_grown
-                                && tree.as_ref().is_none_or(|t| {
-                                    t.nearest_one::<SquaredEuclidean>(&p.to_array()).distance
-                                        >= probe2
-                                }))
+                    // Inside the SAS: solid unless a probe in the solvent reaches it.
+                    // Outside: solid in a cavity's probe-center space, where the
+                    // nearest probe center (nearest point of that space's boundary)
+                    // is on a cavity wall.
+                    MolSurface::Ses if in_grown => {
+                        in_vdw || tree.as_ref().is_none_or(|t| nearest(t, p) >= probe2)
                     }
+                    MolSurface::Ses => cav.as_ref().is_some_and(|c| {
+                        if p.cmplt(cav_box.0).any() || p.cmpgt(cav_box.1).any() {
+                            return false;
+                        }
+                        let dc = nearest(c, p);
+                        dc < probe2 && tree.as_ref().is_none_or(|t| nearest(t, p) > dc)
+                    }),
                 });
                 k += 1;
             }

@@ -122,6 +122,7 @@ pub fn standard_ball(
         genus: pieces.sizes.len() as i64 - chi,
         cavities_filled: 0,
         cavity_voxels: 0,
+        probe_cavities: 0,
         pieces_removed: 0,
         removed_voxels: 0,
         closing_voxels: 0,
