@@ -561,6 +561,7 @@ pub fn solve(
         opts.mem.work_bytes() / 2,
         workers,
         &|| stop.load(Ordering::SeqCst),
+        progress,
     )?;
     progress.finish();
     if polish.interrupted {
