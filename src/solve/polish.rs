@@ -439,41 +439,7 @@ mod tests {
     /// stopped on the global residual leaves the tiny values.
     #[test]
     fn tiny_values_get_relative_accuracy() {
-        let spec = GridSpec {
-            shape: [5, 5, 42],
-            origin: [0.0; 3],
-            spacing: 1.0,
-            chunk: [5, 5, 16],
-            unit: None,
-        };
-        let inside = |v: Idx3| (1..4).contains(&v[0]) && (1..4).contains(&v[1]);
-        let mask = MemStore::new(spec.clone(), 0u8);
-        fill_with(&mask, 1, |v| {
-            if inside(v) && v[2] == 0 {
-                CENTER
-            } else if inside(v) && (1..41).contains(&v[2]) {
-                INTERIOR
-            } else {
-                BOUNDARY
-            }
-        })
-        .unwrap();
-        let u = MemStore::new(spec.clone(), 0.0f64);
-        fill_with(&u, 1, |v| {
-            if inside(v) && v[2] == 0 {
-                1.0
-            } else if inside(v) && v[2] < 41 {
-                let noise = if (v[0] + v[1] + v[2]) % 2 == 0 {
-                    1e-12
-                } else {
-                    -1e-12
-                };
-                (-0.8 * v[2] as f64).exp() + noise
-            } else {
-                0.0
-            }
-        })
-        .unwrap();
+        let (spec, u, mask) = tube(16);
         let opts = PolishOptions::default();
         let rep = polish(
             &u,
