@@ -387,6 +387,21 @@ mod tests {
         (spec, u, mask)
     }
 
+    /// The polish with default options, never stopped, silent.
+    fn run(u: &MemStore<f64>, mask: &MemStore<u8>, bytes: u64, workers: usize) -> PolishReport {
+        let opts = PolishOptions::default();
+        polish(
+            u,
+            mask,
+            &opts,
+            bytes,
+            workers,
+            &|| false,
+            &crate::progress::Silent,
+        )
+        .unwrap()
+    }
+
     fn all_values(spec: &GridSpec, u: &MemStore<f64>) -> Vec<f64> {
         let b = u
             .read_region([0; 3], to_usize(spec.shape), f64::NAN)
@@ -404,16 +419,7 @@ mod tests {
         let mut results = Vec::new();
         for chunk in [4, 16, 64] {
             let (spec, u, mask) = tube(chunk);
-            let rep = polish(
-                &u,
-                &mask,
-                &opts,
-                1 << 30,
-                2,
-                &|| false,
-                &crate::progress::Silent,
-            )
-            .unwrap();
+            let rep = run(&u, &mask, 1 << 30, 2);
             assert!(
                 rep.negative[1] == 0 && rep.last_change < opts.rel_change,
                 "{rep:?}"
@@ -428,7 +434,7 @@ mod tests {
             }
         }
         let (spec, u, mask) = tube(4);
-        let rep = polish(&u, &mask, &opts, 1, 1, &|| false, &crate::progress::Silent).unwrap();
+        let rep = run(&u, &mask, 1, 1);
         assert!(rep.blocks >= 6 && rep.passes > 1, "{rep:?}");
         assert_eq!(all_values(&spec, &u), results[0]);
     }
@@ -441,16 +447,7 @@ mod tests {
     fn tiny_values_get_relative_accuracy() {
         let (spec, u, mask) = tube(16);
         let opts = PolishOptions::default();
-        let rep = polish(
-            &u,
-            &mask,
-            &opts,
-            1 << 30,
-            2,
-            &|| false,
-            &crate::progress::Silent,
-        )
-        .unwrap();
+        let rep = run(&u, &mask, 1 << 30, 2);
         assert!(rep.negative[0] > 0 && rep.negative[1] == 0, "{rep:?}");
         assert!(rep.last_change < opts.rel_change, "{rep:?}");
         // Down the tube's axis the values fall by the same factor per voxel (the tube's
