@@ -2,7 +2,7 @@
 
 use std::sync::RwLock;
 
-use super::store::check_block;
+use super::store::{block_in_box, check_block, RowInspector};
 use super::{copy_overlap, to_usize, Block, BlockStore, GridError, GridSpec, Scalar};
 use crate::math::{volume, Idx3};
 
@@ -51,6 +51,34 @@ impl<T: Scalar> BlockStore<T> for MemStore<T> {
         match &mut *slot {
             Some(v) => v.copy_from_slice(data),
             None => *slot = Some(data.to_vec()),
+        }
+        Ok(())
+    }
+
+    fn write_block_from(
+        &self,
+        b: Idx3,
+        src: &Block<T>,
+        mut inspect: Option<RowInspector<'_, T>>,
+    ) -> Result<(), GridError> {
+        check_block::<T>(&self.spec, b, None)?;
+        let (lo, shape) = block_in_box(&self.spec, b, src);
+        let mut slot = self.blocks[self.spec.block_linear(b) as usize]
+            .write()
+            .expect("lock");
+        let dst = slot.get_or_insert_with(|| vec![self.fill; shape.iter().product()]);
+        // Row by row from the box into the block, under its write lock.
+        for z in 0..shape[0] {
+            for y in 0..shape[1] {
+                let r = z * shape[1] + y;
+                let o = src.offset(lo[0] + z, lo[1] + y, lo[2]);
+                let new = &src.data[o..o + shape[2]];
+                let old = &mut dst[r * shape[2]..(r + 1) * shape[2]];
+                if let Some(f) = inspect.as_mut() {
+                    f(r, old, new);
+                }
+                old.copy_from_slice(new);
+            }
         }
         Ok(())
     }

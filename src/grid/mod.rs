@@ -79,4 +79,54 @@ mod tests {
             }
         }
     }
+
+    /// `write_block_from` (MemStore's override and the default) writes the block's part
+    /// of a box, shows each row's old and new values, and leaves other blocks alone.
+    #[test]
+    fn write_block_from_agrees_across_backends() {
+        let spec = GridSpec {
+            shape: [9, 10, 11],
+            origin: [0.0; 3],
+            spacing: 1.0,
+            chunk: [4, 4, 8],
+            unit: None,
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let mem = MemStore::<u16>::new(spec.clone(), 7);
+        let mm = MmapStore::<u16>::create(&dir.path().join("m"), spec.clone()).unwrap();
+        fill_with(&mm, 1, |_| 7).unwrap();
+        let b = [1, 2, 0];
+        // A box around block b with a halo of 2 (off the grid on the low x side).
+        let s = spec.block_start(b).map(|c| c as i64);
+        let bsh = spec.block_shape(b).map(|c| c as usize);
+        let origin = s.map(|c| c - 2);
+        let shape = bsh.map(|c| c + 4);
+        let mut bx = Block::filled(origin, shape, 0u16);
+        for (i, v) in bx.data.iter_mut().enumerate() {
+            *v = (i % 1000) as u16 + 100;
+        }
+        for st in [&mem as &dyn BlockStore<u16>, &mm] {
+            let mut rows = Vec::new();
+            st.write_block_from(
+                b,
+                &bx,
+                Some(&mut |r, old: &[u16], new: &[u16]| {
+                    assert!(old.iter().all(|&v| v == 7));
+                    rows.push((r, new.to_vec()));
+                }),
+            )
+            .unwrap();
+            assert_eq!(rows.len(), bsh[0] * bsh[1]);
+            let got = st.read_block(b).unwrap();
+            for z in 0..bsh[0] {
+                for y in 0..bsh[1] {
+                    let want = &bx.data[bx.offset(z + 2, y + 2, 2)..][..bsh[2]];
+                    let r = z * bsh[1] + y;
+                    assert_eq!(&got[r * bsh[2]..(r + 1) * bsh[2]], want);
+                    assert_eq!(rows[r], (r, want.to_vec()));
+                }
+            }
+            assert!(st.read_block([0, 0, 0]).unwrap().iter().all(|&v| v == 7));
+        }
+    }
 }

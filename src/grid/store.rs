@@ -109,6 +109,10 @@ pub enum GridError {
     },
 }
 
+/// Called by [`BlockStore::write_block_from`] with each row's index in the block, the
+/// values it held and the values written over them.
+pub type RowInspector<'a, T> = &'a mut dyn FnMut(usize, &[T], &[T]);
+
 /// Block access to a chunked grid of `T`.
 pub trait BlockStore<T: Scalar>: Send + Sync {
     /// The grid and its block shape.
@@ -120,6 +124,32 @@ pub trait BlockStore<T: Scalar>: Send + Sync {
 
     /// Write block `b`; `data` has the block's true extent.
     fn write_block(&self, b: Idx3, data: &[T]) -> Result<(), GridError>;
+
+    /// Write block `b` from the box `src`, which must cover it. With `inspect`, every row
+    /// of the block is shown first, as its index in the block (`z * ny + y`), the values
+    /// it held and the values written over them, so a caller can measure a change
+    /// without reading the block separately.
+    fn write_block_from(
+        &self,
+        b: Idx3,
+        src: &Block<T>,
+        inspect: Option<RowInspector<'_, T>>,
+    ) -> Result<(), GridError> {
+        let spec = self.spec();
+        let (lo, shape) = block_in_box(spec, b, src);
+        let data = src.crop(lo, shape);
+        if let Some(f) = inspect {
+            let old = self.read_block(b)?;
+            for (r, (o, n)) in old
+                .chunks_exact(shape[2])
+                .zip(data.chunks_exact(shape[2]))
+                .enumerate()
+            {
+                f(r, o, n);
+            }
+        }
+        self.write_block(b, &data)
+    }
 
     /// Read the box `[origin, origin + shape)` in grid coordinates. Voxels outside the
     /// grid take `outside`. The default assembles it from whole blocks; backends that can
@@ -153,6 +183,22 @@ pub trait BlockStore<T: Scalar>: Send + Sync {
             outside,
         )
     }
+}
+
+/// Where block `b` of `spec` sits in the box `bx` (its first voxel, local to the box),
+/// and its extent. Panics when the box does not cover the block.
+pub(crate) fn block_in_box<T>(spec: &GridSpec, b: Idx3, bx: &Block<T>) -> ([usize; 3], [usize; 3]) {
+    let s = spec.block_start(b);
+    let shape = spec.block_shape(b).map(|c| c as usize);
+    let lo = [0, 1, 2].map(|a| {
+        let l = s[a] as i64 - bx.origin[a];
+        assert!(
+            l >= 0 && l as usize + shape[a] <= bx.shape[a],
+            "the box does not cover the block"
+        );
+        l as usize
+    });
+    (lo, shape)
 }
 
 pub(crate) fn check_block<T>(

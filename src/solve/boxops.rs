@@ -131,30 +131,34 @@ impl BoxView<'_> {
     }
 }
 
-/// The two inner products of the energy-minimizing step length of a correction `c`
-/// (held in `cbox`, same box as `view`): `(D . c, c . A c)` over the unknowns of the
-/// local sub-box `[lo, hi)`, where `D` is the defect of `view` and `A c = 6 c - sum of
-/// neighbours`.
+/// `c . A c` over the unknowns of the local sub-box `[lo, hi)` of a box of `shape`
+/// (which must leave a voxel on every side of it), for a correction `c` on that box
+/// taken as 0 off the unknowns; `A c = 6 c - sum of neighbours`.
 #[must_use]
-pub fn step_products(view: &BoxView<'_>, c: &[f64], lo: [usize; 3], hi: [usize; 3]) -> (f64, f64) {
-    let [_, ny, nx] = view.shape;
-    let (sy, sz) = view.strides();
-    let (mut num, mut den) = (0.0, 0.0);
+pub fn correction_energy(
+    mask: &[u8],
+    c: &[f64],
+    shape: [usize; 3],
+    lo: [usize; 3],
+    hi: [usize; 3],
+) -> f64 {
+    let [_, ny, nx] = shape;
+    let (sy, sz) = (nx, nx * ny);
+    let at = |j: usize| if mask[j] == INTERIOR { c[j] } else { 0.0 };
+    let mut den = 0.0;
     for z in lo[0]..hi[0] {
         for y in lo[1]..hi[1] {
             let row = (z * ny + y) * nx;
             for i in row + lo[2]..row + hi[2] {
-                if view.mask[i] != INTERIOR {
+                if mask[i] != INTERIOR {
                     continue;
                 }
-                let ac = 6.0 * c[i]
-                    - (c[i - 1] + c[i + 1] + c[i - sy] + c[i + sy] + c[i - sz] + c[i + sz]);
-                num += view.defect(i) * c[i];
-                den += c[i] * ac;
+                let nb = at(i - 1) + at(i + 1) + at(i - sy) + at(i + sy) + at(i - sz) + at(i + sz);
+                den += c[i] * (6.0 * c[i] - nb);
             }
         }
     }
-    (num, den)
+    den
 }
 
 /// Full weighting with the coarse-level scaling: the coarse right-hand side at coarse
@@ -242,43 +246,36 @@ pub fn prolong(
     let [cz, cy, cx] = e_shape;
     let [nz, ny, nx] = shape;
     // x: coarse (z, y) rows to fine x.
-    let mut ex = vec![0.0; cz * cy * nx];
+    // (Each array is built by appending, so nothing is zeroed first.)
+    let mut ex = Vec::with_capacity(cz * cy * nx);
     for r in 0..cz * cy {
         let src = &e[r * cx..(r + 1) * cx];
-        for (x, &t) in tx.iter().enumerate() {
-            ex[r * nx + x] = interp(src, t);
-        }
+        ex.extend(tx.iter().map(|&t| interp(src, t)));
     }
     // y: coarse z planes to fine y.
-    let mut exy = vec![0.0; cz * ny * nx];
+    let mut exy = Vec::with_capacity(cz * ny * nx);
     for z in 0..cz {
         let plane = &ex[z * cy * nx..(z + 1) * cy * nx];
-        for (y, &t) in ty.iter().enumerate() {
-            let dst = &mut exy[(z * ny + y) * nx..][..nx];
+        for &t in &ty {
             let a = &plane[t.0 * nx..][..nx];
             if t.1 {
                 let b = &plane[(t.0 + 1) * nx..][..nx];
-                for x in 0..nx {
-                    dst[x] = 0.5 * (a[x] + b[x]);
-                }
+                exy.extend(a.iter().zip(b).map(|(a, b)| 0.5 * (a + b)));
             } else {
-                dst.copy_from_slice(a);
+                exy.extend_from_slice(a);
             }
         }
     }
     // z: to fine planes.
     let pn = ny * nx;
-    let mut out = vec![0.0; nz * pn];
-    for (z, &t) in tz.iter().enumerate() {
-        let dst = &mut out[z * pn..][..pn];
+    let mut out = Vec::with_capacity(nz * pn);
+    for &t in &tz {
         let a = &exy[t.0 * pn..][..pn];
         if t.1 {
             let b = &exy[(t.0 + 1) * pn..][..pn];
-            for i in 0..pn {
-                dst[i] = 0.5 * (a[i] + b[i]);
-            }
+            out.extend(a.iter().zip(b).map(|(a, b)| 0.5 * (a + b)));
         } else {
-            dst.copy_from_slice(a);
+            out.extend_from_slice(a);
         }
     }
     out

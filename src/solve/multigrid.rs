@@ -24,7 +24,7 @@
 
 use std::path::PathBuf;
 
-use super::boxops::{prolong, prolong_add, restrict, step_products, BoxView};
+use super::boxops::{correction_energy, prolong, prolong_add, restrict, BoxView};
 use super::stencil::optimal_omega;
 use crate::grid::{Block, BlockStore, GridError, GridSpec, MemStore, MmapStore, Scalar};
 use crate::math::{volume, Idx3};
@@ -346,23 +346,33 @@ impl Level {
         if let Some(c) = restrict_into {
             restrict_block(&view, c, b)?;
         }
-        let out = bx.u.crop(inner_lo, bshape);
-        let old = match change {
-            Change::None => None,
-            Change::Src => before,
-            Change::Dst => Some(self.u[dst].read_block(b)?),
+        // Row `r` of the block within the box (u and mask share the box's shape).
+        let bsh = bx.u.shape;
+        let interior = |r: usize| {
+            let (z, y) = (inner_lo[0] + r / bshape[1], inner_lo[1] + r % bshape[1]);
+            let o = (z * bsh[1] + y) * bsh[2] + inner_lo[2];
+            o..o + bshape[2]
         };
-        if let Some(old) = old {
-            let m = bx.mask.crop(inner_lo, bshape);
-            st.max_change = old
-                .iter()
-                .zip(&out)
-                .zip(&m)
-                .filter(|(_, &l)| l == INTERIOR)
-                .map(|((o, n), _)| (n - o).abs())
-                .fold(0.0, f64::max);
+        let mut max = 0.0f64;
+        let mut measure_row = |r: usize, old: &[f64], new: &[f64]| {
+            let m = &bx.mask.data[interior(r)];
+            for ((o, n), &l) in old.iter().zip(new).zip(m) {
+                if l == INTERIOR {
+                    max = max.max((n - o).abs());
+                }
+            }
+        };
+        match (change, &before) {
+            (Change::Dst, _) => self.u[dst].write_block_from(b, &bx.u, Some(&mut measure_row))?,
+            (Change::Src, Some(before)) => {
+                for (r, old) in before.chunks_exact(bshape[2]).enumerate() {
+                    measure_row(r, old, &bx.u.data[interior(r)]);
+                }
+                self.u[dst].write_block_from(b, &bx.u, None)?;
+            }
+            _ => self.u[dst].write_block_from(b, &bx.u, None)?,
         }
-        self.u[dst].write_block(b, &out)?;
+        st.max_change = max;
         Ok(st)
     }
 
@@ -396,31 +406,38 @@ impl Level {
         Ok(PassStats::reduce(parts))
     }
 
-    /// The energy-minimizing length of the coarse correction: with `c` the interpolated
-    /// correction and `D` the defect of `u[src]`, `alpha = (D . c) / (c . A c)`.
-    fn step_length(&self, src: usize, coarse: &Level, workers: usize) -> Result<f64, GridError> {
+    /// The energy-minimizing length of the coarse correction: with `c = P e` the
+    /// interpolated correction (on the unknowns) and `D` the defect of the smoothed
+    /// state, `alpha = (D . c) / (c . A c)`.
+    ///
+    /// The numerator is taken on the coarse level: the restriction's weights are those
+    /// of trilinear interpolation (`f = P^T D / 2`, see [`restrict`]) and `e` is 0 off
+    /// the coarse unknowns, so `D . P e = 2 e . f` exactly, with no fine values read.
+    /// The denominator needs only the fine mask and `c`.
+    fn step_length(&self, coarse: &Level, workers: usize) -> Result<f64, GridError> {
+        let cf = coarse
+            .f
+            .as_ref()
+            .expect("coarse levels have a right-hand side");
+        let nums = map_bounded(&coarse.spec.block_indices(), workers, |&cb| {
+            let e = coarse.u[0].read_block(cb)?;
+            let f = cf.read_block(cb)?;
+            Ok::<_, GridError>(e.iter().zip(&f).map(|(a, b)| a * b).sum::<f64>())
+        })?;
+        let num = 2.0 * nums.into_iter().sum::<f64>();
         let spec = &self.spec;
-        let parts = map_bounded(&spec.block_indices(), workers, |&b| {
+        let dens = map_bounded(&spec.block_indices(), workers, |&b| {
             let (origin, shape, _) = box_of(spec, b, 1);
-            let mut bx = self.read_box(src, origin, shape)?;
+            let mask = self.mask.read_region(origin, shape, 0)?;
             let (clo, cshape) = coarse_cover(origin, shape);
             let e = coarse.u[0].read_region(clo, cshape, 0.0)?;
-            // The correction as applied: interpolated, on the unknowns only.
-            let mut c = prolong(&e.data, clo, cshape, origin, shape);
-            for (v, &m) in c.iter_mut().zip(&bx.mask.data) {
-                if m != INTERIOR {
-                    *v = 0.0;
-                }
-            }
-            let view = bx.view();
             let bs = spec.block_start(b);
             let lo = [0, 1, 2].map(|a| (bs[a] as i64 - origin[a]) as usize);
             let hi = [0, 1, 2].map(|a| lo[a] + spec.block_shape(b)[a] as usize);
-            Ok(step_products(&view, &c, lo, hi))
+            let c = prolong(&e.data, clo, cshape, origin, shape);
+            Ok(correction_energy(&mask.data, &c, shape, lo, hi))
         })?;
-        let (num, den) = parts
-            .into_iter()
-            .fold((0.0, 0.0), |a, p| (a.0 + p.0, a.1 + p.1));
+        let den = dens.into_iter().sum::<f64>();
         Ok(if den > 0.0 && num > 0.0 {
             (num / den).clamp(0.5, 4.0)
         } else {
@@ -538,10 +555,7 @@ impl Hierarchy {
         }
         self.cycle_level(k + 1)?;
         let change = if k == 0 { Change::Dst } else { Change::None };
-        let alpha = lvl.step_length(1, coarse, w)?;
-        if std::env::var("PA").is_ok() {
-            eprintln!("level {k} alpha {alpha:.4}");
-        }
+        let alpha = lvl.step_length(coarse, w)?;
         let post = lvl.smooth_pass(
             1,
             0,

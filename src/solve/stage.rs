@@ -465,6 +465,7 @@ pub fn solve(
         workers,
     )?;
     let it = Iteration::new(&h, opts.method, opts.omega);
+    let t_setup = t0.elapsed().as_secs_f64();
 
     let mut ck = Checkpoints {
         dir: dir.clone(),
@@ -540,6 +541,7 @@ pub fn solve(
         Ok(d)
     })?;
     progress.finish();
+    let t_iter = t0.elapsed().as_secs_f64();
     if let Some(e) = ck_err {
         return Err(e);
     }
@@ -589,6 +591,7 @@ pub fn solve(
         ));
     }
 
+    let t_polish = t0.elapsed().as_secs_f64();
     // phi = 1 - u for users, and u itself (the precise one, for the stages after);
     // NaN outside the problem; staged then renamed into place.
     let out_phi = run.create_image_staged::<f64>("phi", &spec, f64::NAN, Compression::Zstd(1))?;
@@ -628,6 +631,13 @@ pub fn solve(
         polish,
     };
     let seconds = t0.elapsed().as_secs_f64();
+    progress.info(&format!(
+        "solve: seconds: setup {t_setup:.2}, {} {:.2}, polish {:.2}, writing {:.2}",
+        opts.method.name(),
+        t_iter - t_setup,
+        t_polish - t_iter,
+        seconds - t_polish
+    ));
     run.record_stage("solve", seconds, opts, &report)?;
     let _ = fs::remove_dir_all(&dir);
     Ok(report)
