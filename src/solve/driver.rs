@@ -1,9 +1,10 @@
 //! The iteration loop shared by the three methods: measure the residual of the current
 //! state, decide (stop, checkpoint, go on), finish the iteration.
 //!
-//! Every method's iteration starts with a pass that reads the state (generation `cur`)
-//! and measures its residual on the way; nothing has overwritten that state when the
-//! loop decides, so the answer, a checkpoint and an interruption all see one whole
+//! The loop decides on the residual of the current state (generation `cur`), measured
+//! by the pass that reads it (SOR, Jacobi, the first multigrid cycle) or, for later
+//! multigrid cycles, by the pass that wrote it; nothing has overwritten that state when
+//! the loop decides, so the answer, a checkpoint and an interruption all see one whole
 //! iterate. The residual history is therefore `||r(x_k)|| / ||r(x_0)||` for the iterates
 //! `x_0, x_1, ...` exactly.
 
@@ -154,13 +155,24 @@ impl Iteration<'_> {
     ) -> Result<StopReason, GridError> {
         let fine = &self.h.levels[0];
         let w = self.h.workers;
+        // Multigrid: the residual of the current state as the last cycle measured it,
+        // and whether this cycle's pre-smoothing is done.
+        let mut measured: Option<PassStats> = None;
+        let mut pre_done = false;
         loop {
             let cur = hist.cur;
-            // The first pass of the iteration: measures the state.
+            // The state's residual: measured by the first pass of the iteration, or (for
+            // multigrid after the first cycle) by the last pass of the one before.
             let first = match self.method {
                 Method::Multigrid => {
                     debug_assert_eq!(cur, 0);
-                    self.h.pre_smooth_fine()?
+                    if let Some(m) = measured.take() {
+                        pre_done = false;
+                        m
+                    } else {
+                        pre_done = true;
+                        self.h.pre_smooth_fine(true)?
+                    }
                 }
                 Method::Sor => fine.sor_pass(cur, 1 - cur, self.omega, w)?,
                 Method::Jacobi => jacobi_pass(fine, cur, 1 - cur, w)?,
@@ -179,7 +191,14 @@ impl Iteration<'_> {
                 return Ok(why);
             }
             let change = match self.method {
-                Method::Multigrid => self.h.finish_cycle()?,
+                Method::Multigrid => {
+                    if !pre_done {
+                        self.h.pre_smooth_fine(false)?;
+                    }
+                    let (change, next) = self.h.finish_cycle()?;
+                    measured = Some(next);
+                    change
+                }
                 Method::Sor | Method::Jacobi => {
                     hist.cur = 1 - cur;
                     first.max_change

@@ -10,13 +10,15 @@
 //!
 //! 1. pre-smoothing: read each block of generation 0 with a halo of `2 nu1`, do `nu1`
 //!    sweeps in the box (the valid region shrinks by one voxel a half-sweep), write the
-//!    block to generation 1; on the finest level the pass also measures the residual of
-//!    what it read;
+//!    block to generation 1;
 //! 2. restriction: for each coarse block, read the fine generation 1 over the box its
 //!    full-weighting stencil needs, and write the coarse right-hand side (and a zero
 //!    correction);
 //! 3. correction and post-smoothing: read generation 1 with a halo, add the interpolated
-//!    coarse correction, do `nu2` sweeps, write generation 0.
+//!    coarse correction, do `nu2` sweeps, write generation 0; on the finest level the
+//!    pass also measures the residual of what it writes (one more voxel of halo), so the
+//!    loop decides whether to stop without starting another cycle. The first cycle (and
+//!    the first after a resume) measures its start in pass 1 instead.
 //!
 //! The coarsest level (a single block) is relaxed by many sweeps in memory. Every pass
 //! writes only its own blocks and reduces per-block numbers in block order, so the result
@@ -149,6 +151,17 @@ pub fn worker_bytes(chunk: Idx3, halo: u64) -> u64 {
     // defects; smoothing reads the haloed block of u, mask, f and writes one block.
     let restrict_box = volume(chunk.map(|c| c + 3));
     (boxed * (8 + 1 + 8) + volume(chunk) * 16).max(restrict_box * (8 + 1 + 8 + 8))
+}
+
+/// Which state's residual a smoothing pass measures.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Measure {
+    /// None.
+    None,
+    /// What the pass read.
+    Before,
+    /// What it writes (the box is read one voxel wider for it).
+    After,
 }
 
 /// Which largest change a smoothing pass measures.
@@ -293,9 +306,10 @@ impl Level {
     }
 
     /// Pass 1 or 3 on one block: read `u[src]` over the haloed box, optionally add the
-    /// interpolated correction of `coarse`, measure the residual of what was read
-    /// (`measure`), do `sweeps` sweeps, write the block to `u[dst]`; with `change`, also
-    /// the largest change against the block's content in `u[dst]`.
+    /// interpolated correction of `coarse`, do `sweeps` sweeps, write the block to
+    /// `u[dst]`; measure the residual of what was read or of what is written
+    /// (`measure`); with `change`, also the largest change against the block's content
+    /// in `u[dst]`.
     #[allow(clippy::too_many_arguments)]
     fn smooth_block(
         &self,
@@ -305,14 +319,19 @@ impl Level {
         sweeps: usize,
         omega: f64,
         coarse: Option<(&Level, f64)>,
-        measure: bool,
+        measure: Measure,
         change: Change,
         restrict_into: Option<&Level>,
     ) -> Result<PassStats, GridError> {
         let spec = &self.spec;
         let single = spec.num_blocks() == 1;
-        // Restriction needs defects one voxel past the block, so values two past it.
-        let extra = if restrict_into.is_some() { 2 } else { 0 };
+        // Restriction needs defects one voxel past the block, so values two past it; the
+        // residual of the result needs values one past it.
+        let extra = if restrict_into.is_some() {
+            2
+        } else {
+            usize::from(measure == Measure::After)
+        };
         let halo = if single {
             1
         } else {
@@ -327,7 +346,7 @@ impl Level {
         let mut st = PassStats::default();
         let before = (change == Change::Src).then(|| bx.u.crop(inner_lo, bshape));
         let mut view = bx.view();
-        if measure {
+        if measure == Measure::Before {
             (st.res_sq, st.count) = view.residual_sq(inner_lo, inner_hi);
         }
         if let Some((c, alpha)) = coarse {
@@ -342,6 +361,9 @@ impl Level {
             }
         } else {
             view.sweeps(sweeps, shrink, omega);
+        }
+        if measure == Measure::After {
+            (st.res_sq, st.count) = view.residual_sq(inner_lo, inner_hi);
         }
         if let Some(c) = restrict_into {
             restrict_block(&view, c, b)?;
@@ -385,7 +407,7 @@ impl Level {
         sweeps: usize,
         omega: f64,
         coarse: Option<(&Level, f64)>,
-        measure: bool,
+        measure: Measure,
         change: Change,
         restrict_into: Option<&Level>,
         workers: usize,
@@ -535,26 +557,37 @@ impl Hierarchy {
     }
 
     /// The first pass of a V-cycle on the finest level: pre-smoothing from generation 0
-    /// into 1, measuring the residual of generation 0.
-    pub fn pre_smooth_fine(&self) -> Result<PassStats, GridError> {
+    /// into 1, measuring the residual of generation 0 when `measure` (the first cycle,
+    /// and the first after a resume; later cycles had it measured by the cycle before).
+    pub fn pre_smooth_fine(&self, measure: bool) -> Result<PassStats, GridError> {
         let c = self.cycle;
         let r = self.fused(0);
-        self.levels[0].smooth_pass(0, 1, c.pre, 1.0, None, true, Change::None, r, self.workers)
+        let m = if measure {
+            Measure::Before
+        } else {
+            Measure::None
+        };
+        self.levels[0].smooth_pass(0, 1, c.pre, 1.0, None, m, Change::None, r, self.workers)
     }
 
     /// The rest of the V-cycle: coarse-grid correction and post-smoothing back into
-    /// generation 0. Returns the largest change of the whole cycle.
-    pub fn finish_cycle(&self) -> Result<f64, GridError> {
+    /// generation 0. Returns the largest change of the whole cycle and the residual of
+    /// the new state (so that the loop can decide before the next cycle's first pass).
+    pub fn finish_cycle(&self) -> Result<(f64, PassStats), GridError> {
         self.correct_and_smooth(0)
     }
 
-    fn correct_and_smooth(&self, k: usize) -> Result<f64, GridError> {
+    fn correct_and_smooth(&self, k: usize) -> Result<(f64, PassStats), GridError> {
         let (lvl, coarse, w) = (&self.levels[k], &self.levels[k + 1], self.workers);
         if self.fused(k).is_none() {
             lvl.restrict_pass(1, coarse, w)?;
         }
         self.cycle_level(k + 1)?;
-        let change = if k == 0 { Change::Dst } else { Change::None };
+        let (change, measure) = if k == 0 {
+            (Change::Dst, Measure::After)
+        } else {
+            (Change::None, Measure::None)
+        };
         let alpha = lvl.step_length(coarse, w)?;
         let post = lvl.smooth_pass(
             1,
@@ -562,12 +595,12 @@ impl Hierarchy {
             self.cycle.post,
             1.0,
             Some((coarse, alpha)),
-            false,
+            measure,
             change,
             None,
             w,
         )?;
-        Ok(post.max_change)
+        Ok((post.max_change, post))
     }
 
     /// A V-cycle on coarse level `k`, from its generation 0 (zero) back into it.
@@ -579,11 +612,31 @@ impl Hierarchy {
             let n = lvl.spec.shape.iter().copied().max().unwrap_or(2);
             let sweeps = (4 * n as usize).max(20);
             let omega = optimal_omega(n as f64);
-            lvl.smooth_pass(0, 0, sweeps, omega, None, false, Change::None, None, w)?;
+            lvl.smooth_pass(
+                0,
+                0,
+                sweeps,
+                omega,
+                None,
+                Measure::None,
+                Change::None,
+                None,
+                w,
+            )?;
             return Ok(());
         }
         let r = self.fused(k);
-        lvl.smooth_pass(0, 1, self.cycle.pre, 1.0, None, false, Change::None, r, w)?;
+        lvl.smooth_pass(
+            0,
+            1,
+            self.cycle.pre,
+            1.0,
+            None,
+            Measure::None,
+            Change::None,
+            r,
+            w,
+        )?;
         self.correct_and_smooth(k)?;
         Ok(())
     }
@@ -599,6 +652,16 @@ impl Level {
         omega: f64,
         workers: usize,
     ) -> Result<PassStats, GridError> {
-        self.smooth_pass(src, dst, 1, omega, None, true, Change::Src, None, workers)
+        self.smooth_pass(
+            src,
+            dst,
+            1,
+            omega,
+            None,
+            Measure::Before,
+            Change::Src,
+            None,
+            workers,
+        )
     }
 }
