@@ -7,6 +7,7 @@
 
 mod block;
 mod budget;
+mod flat;
 mod memory;
 mod mmap;
 mod spec;
@@ -15,6 +16,7 @@ mod zarr;
 
 pub use block::{copy_overlap, to_usize, Block};
 pub use budget::{human, MemBudget, BASE_BYTES};
+pub use flat::FlatStore;
 pub use memory::MemStore;
 pub use mmap::MmapStore;
 pub use spec::GridSpec;
@@ -39,6 +41,7 @@ mod tests {
         let value = |z: u64, y: u64, x: u64| ((z * 31 + y * 7 + x) % 251) as u16 + 1;
         let dir = tempfile::tempdir().unwrap();
         let mem = MemStore::<u16>::new(spec.clone(), 0);
+        let flat = FlatStore::<u16>::new(spec.clone(), 0);
         let mm = MmapStore::<u16>::create(&dir.path().join("m"), spec.clone()).unwrap();
         let zs = ZarrStore::<u16>::create(
             dir.path(),
@@ -49,10 +52,26 @@ mod tests {
             serde_json::Map::new(),
         )
         .unwrap();
-        for st in [&mem as &dyn BlockStore<u16>, &mm, &zs] {
+        for st in [&mem as &dyn BlockStore<u16>, &flat, &mm, &zs] {
             fill_with(st, 2, |[z, y, x]| value(z, y, x)).unwrap();
         }
-        let stores: [&dyn BlockStore<u16>; 3] = [&mem, &mm, &zs];
+        let stores: [&dyn BlockStore<u16>; 4] = [&mem, &flat, &mm, &zs];
+        for st in stores {
+            for b in spec.block_indices() {
+                let s = spec.block_start(b);
+                let sh = spec.block_shape(b);
+                let got = st.read_block(b).unwrap();
+                let mut i = 0;
+                for z in s[0]..s[0] + sh[0] {
+                    for y in s[1]..s[1] + sh[1] {
+                        for x in s[2]..s[2] + sh[2] {
+                            assert_eq!(got[i], value(z, y, x), "block {b:?}");
+                            i += 1;
+                        }
+                    }
+                }
+            }
+        }
         let boxes = [
             ([0, 0, 0], [13, 10, 21]),
             ([-3, -2, -5], [6, 5, 9]),
@@ -93,6 +112,7 @@ mod tests {
         };
         let dir = tempfile::tempdir().unwrap();
         let mem = MemStore::<u16>::new(spec.clone(), 7);
+        let flat = FlatStore::<u16>::new(spec.clone(), 7);
         let mm = MmapStore::<u16>::create(&dir.path().join("m"), spec.clone()).unwrap();
         fill_with(&mm, 1, |_| 7).unwrap();
         let b = [1, 2, 0];
@@ -105,7 +125,7 @@ mod tests {
         for (i, v) in bx.data.iter_mut().enumerate() {
             *v = (i % 1000) as u16 + 100;
         }
-        for st in [&mem as &dyn BlockStore<u16>, &mm] {
+        for st in [&mem as &dyn BlockStore<u16>, &flat, &mm] {
             let mut rows = Vec::new();
             st.write_block_from(
                 b,

@@ -170,6 +170,11 @@ pub trait BlockStore<T: Scalar>: Send + Sync {
         Ok(out)
     }
 
+    /// The store as one in-memory array, when it is one.
+    fn as_flat(&self) -> Option<&super::FlatStore<T>> {
+        None
+    }
+
     /// Read block `b` with a halo of `halo` voxels on every side. Voxels of the halo that
     /// fall outside the grid take `outside`.
     fn read_block_halo(&self, b: Idx3, halo: usize, outside: T) -> Result<Block<T>, GridError> {

@@ -12,6 +12,7 @@
 pub mod boxops;
 pub mod dirichlet;
 pub mod driver;
+pub mod flat;
 pub mod multigrid;
 pub mod polish;
 pub mod stage;

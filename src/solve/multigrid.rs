@@ -27,8 +27,9 @@
 use std::path::PathBuf;
 
 use super::boxops::{correction_energy, prolong, prolong_add, restrict, BoxView};
+use super::flat::Flat;
 use super::stencil::optimal_omega;
-use crate::grid::{Block, BlockStore, GridError, GridSpec, MemStore, MmapStore, Scalar};
+use crate::grid::{Block, BlockStore, FlatStore, GridError, GridSpec, MmapStore, Scalar};
 use crate::math::{volume, Idx3};
 use crate::parallel::map_bounded;
 use crate::voxelize::labels::INTERIOR;
@@ -82,7 +83,7 @@ impl StoreMaker for Scratch {
         fill: T,
     ) -> Result<Box<dyn BlockStore<T>>, GridError> {
         if in_memory {
-            Ok(Box::new(MemStore::new(spec.clone(), fill)))
+            Ok(Box::new(FlatStore::new(spec.clone(), fill)))
         } else {
             let s = MmapStore::create(&self.dir.join(format!("{name}.bin")), spec.clone())?;
             // A new scratch file reads as all-zero bytes.
@@ -105,6 +106,8 @@ pub struct Level {
     pub u: [Box<dyn BlockStore<f64>>; 2],
     /// `None` on the finest level (0).
     pub f: Option<Box<dyn BlockStore<f64>>>,
+    /// Runs of unknowns along x, for a level held as arrays (built on first use).
+    pub runs: std::sync::OnceLock<super::flat::Runs>,
 }
 
 /// The shape of the level below `shape`: nodes at even fine indices.
@@ -538,7 +541,13 @@ impl Hierarchy {
                 maker.make::<f64>(&format!("u{lvl}b"), &spec, mem, 0.0)?,
             ];
             let f = Some(maker.make::<f64>(&format!("f{lvl}"), &spec, mem, 0.0)?);
-            levels.push(Level { spec, mask, u, f });
+            levels.push(Level {
+                spec,
+                mask,
+                u,
+                f,
+                runs: std::sync::OnceLock::new(),
+            });
         }
         Ok(Self {
             levels,
@@ -550,10 +559,20 @@ impl Hierarchy {
     /// The level under `k` when restriction can be done in the pre-smoothing pass of
     /// `k`: each fine block lies over exactly one coarse block.
     fn fused(&self, k: usize) -> Option<&Level> {
+        if self.flat(k).is_some() {
+            return Some(&self.levels[k + 1]);
+        }
         let (f, c) = (&self.levels[k].spec, &self.levels.get(k + 1)?.spec);
         let single = f.num_blocks() == 1 && c.num_blocks() == 1;
         let aligned = f.blocks() == c.blocks() && (0..3).all(|a| c.chunk[a] * 2 == f.chunk[a]);
         (single || aligned).then(|| &self.levels[k + 1])
+    }
+
+    /// Levels `k` and `k + 1` as whole arrays, when both are held so: their passes then
+    /// run in place on the arrays ([`super::flat`]), with the same results.
+    fn flat(&self, k: usize) -> Option<(Flat<'_>, Flat<'_>)> {
+        let c = self.levels.get(k + 1)?;
+        Some((Flat::of(&self.levels[k])?, Flat::of(c)?))
     }
 
     /// The first pass of a V-cycle on the finest level: pre-smoothing from generation 0
@@ -561,6 +580,14 @@ impl Hierarchy {
     /// and the first after a resume; later cycles had it measured by the cycle before).
     pub fn pre_smooth_fine(&self, measure: bool) -> Result<PassStats, GridError> {
         let c = self.cycle;
+        if let Some((f, coarse)) = self.flat(0) {
+            let (res_sq, count) = f.pre(c.pre, measure, &coarse);
+            return Ok(PassStats {
+                res_sq,
+                count,
+                max_change: 0.0,
+            });
+        }
         let r = self.fused(0);
         let m = if measure {
             Measure::Before
@@ -589,6 +616,15 @@ impl Hierarchy {
             (Change::None, Measure::None)
         };
         let alpha = lvl.step_length(coarse, w)?;
+        if let Some((f, c)) = self.flat(k) {
+            let (max_change, (res_sq, count)) = f.post(self.cycle.post, &c, alpha, k == 0, k == 0);
+            let st = PassStats {
+                res_sq,
+                count,
+                max_change,
+            };
+            return Ok((max_change, st));
+        }
         let post = lvl.smooth_pass(
             1,
             0,
@@ -624,6 +660,10 @@ impl Hierarchy {
                 w,
             )?;
             return Ok(());
+        }
+        if let Some((f, c)) = self.flat(k) {
+            f.pre(self.cycle.pre, false, &c);
+            return self.correct_and_smooth(k).map(|_| ());
         }
         let r = self.fused(k);
         lvl.smooth_pass(

@@ -456,6 +456,7 @@ pub fn solve(
             maker.make::<f64>("phi_b", &spec, mem0, 0.0)?,
         ],
         f: None,
+        runs: std::sync::OnceLock::new(),
     };
     let h = Hierarchy::build(
         fine,

@@ -1,0 +1,111 @@
+//! In-memory backend as one array: the whole grid in C order. Block access copies rows;
+//! kernels that work on the whole grid (the in-memory levels of the multigrid solver)
+//! take the array itself and so skip the copies that block-by-block passes need.
+
+use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
+
+use super::store::check_block;
+use super::{Block, BlockStore, GridError, GridSpec, Scalar};
+use crate::math::{volume, Idx3};
+
+/// A grid held in memory as one C-order array.
+pub struct FlatStore<T> {
+    spec: GridSpec,
+    data: RwLock<Vec<T>>,
+}
+
+impl<T: Scalar> FlatStore<T> {
+    /// A grid filled with `fill`.
+    #[must_use]
+    pub fn new(spec: GridSpec, fill: T) -> Self {
+        let n = spec.num_voxels() as usize;
+        Self {
+            spec,
+            data: RwLock::new(vec![fill; n]),
+        }
+    }
+
+    /// The array, for reading.
+    pub fn read(&self) -> RwLockReadGuard<'_, Vec<T>> {
+        self.data.read().expect("lock")
+    }
+
+    /// The array, for writing.
+    pub fn write(&self) -> RwLockWriteGuard<'_, Vec<T>> {
+        self.data.write().expect("lock")
+    }
+
+    /// Offset of the first voxel of each row of block `b`, and the row length.
+    fn rows(&self, b: Idx3) -> (Vec<usize>, usize) {
+        let s = self.spec.block_start(b).map(|c| c as usize);
+        let sh = self.spec.block_shape(b).map(|c| c as usize);
+        let [_, ny, nx] = self.spec.shape.map(|c| c as usize);
+        let mut out = Vec::with_capacity(sh[0] * sh[1]);
+        for z in s[0]..s[0] + sh[0] {
+            for y in s[1]..s[1] + sh[1] {
+                out.push((z * ny + y) * nx + s[2]);
+            }
+        }
+        (out, sh[2])
+    }
+}
+
+impl<T: Scalar> BlockStore<T> for FlatStore<T> {
+    fn spec(&self) -> &GridSpec {
+        &self.spec
+    }
+
+    fn read_block(&self, b: Idx3) -> Result<Vec<T>, GridError> {
+        check_block::<T>(&self.spec, b, None)?;
+        let (rows, n) = self.rows(b);
+        let d = self.read();
+        let mut out = Vec::with_capacity(volume(self.spec.block_shape(b)) as usize);
+        for o in rows {
+            out.extend_from_slice(&d[o..o + n]);
+        }
+        Ok(out)
+    }
+
+    fn write_block(&self, b: Idx3, data: &[T]) -> Result<(), GridError> {
+        check_block(&self.spec, b, Some(data))?;
+        let (rows, n) = self.rows(b);
+        let mut d = self.write();
+        for (o, src) in rows.into_iter().zip(data.chunks_exact(n)) {
+            d[o..o + n].copy_from_slice(src);
+        }
+        Ok(())
+    }
+
+    fn read_region(
+        &self,
+        origin: [i64; 3],
+        shape: [usize; 3],
+        outside: T,
+    ) -> Result<Block<T>, GridError> {
+        let g = self.spec.shape.map(|c| c as i64);
+        let mut out = Block::filled(origin, shape, outside);
+        let lo = [0, 1, 2].map(|a| origin[a].max(0));
+        let hi = [0, 1, 2].map(|a| (origin[a] + shape[a] as i64).min(g[a]));
+        if (0..3).any(|a| lo[a] >= hi[a]) {
+            return Ok(out);
+        }
+        let d = self.read();
+        let n = (hi[2] - lo[2]) as usize;
+        for z in lo[0]..hi[0] {
+            for y in lo[1]..hi[1] {
+                let s = ((z * g[1] + y) * g[2] + lo[2]) as usize;
+                let o = out.offset(
+                    (z - origin[0]) as usize,
+                    (y - origin[1]) as usize,
+                    (lo[2] - origin[2]) as usize,
+                );
+                out.data[o..o + n].copy_from_slice(&d[s..s + n]);
+            }
+        }
+        Ok(out)
+    }
+
+    fn as_flat(&self) -> Option<&FlatStore<T>> {
+        Some(self)
+    }
+}
