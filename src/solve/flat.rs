@@ -173,24 +173,41 @@ fn defect(u: &[f64], f: Option<&[f64]>, i: usize, sy: usize, sz: usize) -> f64 {
     f.map_or(0.0, |f| f[i]) + nb - 6.0 * u[i]
 }
 
-/// Sum of squares and count of the residual `defect / 6` over the unknowns, summed
-/// block by block (each in z, y, x order) and the blocks in block order.
-fn residual(spec: &GridSpec, u: &[f64], mask: &[u8], f: Option<&[f64]>) -> (f64, u64) {
+/// Over the unknowns of `u`: the largest |u - old| (with `old`), and the sum of squares
+/// and count of the residual `defect / 6` (with `measure`), summed block by block (each
+/// in z, y, x order) and the blocks in block order, as the block passes sum them.
+fn block_stats(
+    spec: &GridSpec,
+    u: &[f64],
+    old: Option<&[f64]>,
+    mask: &[u8],
+    f: Option<&[f64]>,
+    measure: bool,
+) -> (f64, f64, u64) {
+    if old.is_none() && !measure {
+        return (0.0, 0.0, 0);
+    }
     let [_, ny, nx] = dims(spec);
     let (sy, sz) = (nx, nx * ny);
-    let parts: Vec<(f64, u64)> = spec
+    let parts: Vec<(f64, f64, u64)> = spec
         .block_indices()
         .par_iter()
         .with_max_len(1)
         .map(|&b| {
             let s = spec.block_start(b).map(|c| c as usize);
             let e = [0, 1, 2].map(|a| s[a] + spec.block_shape(b)[a] as usize);
-            let (mut sum, mut n) = (0.0, 0u64);
+            let (mut max, mut sum, mut n) = (0.0f64, 0.0, 0u64);
             for z in s[0]..e[0] {
                 for y in s[1]..e[1] {
                     let row = (z * ny + y) * nx;
-                    for (i, &m) in mask.iter().enumerate().take(row + e[2]).skip(row + s[2]) {
-                        if m == INTERIOR {
+                    for i in row + s[2]..row + e[2] {
+                        if mask[i] != INTERIOR {
+                            continue;
+                        }
+                        if let Some(old) = old {
+                            max = max.max((u[i] - old[i]).abs());
+                        }
+                        if measure {
                             let r = defect(u, f, i, sy, sz) / 6.0;
                             sum += r * r;
                             n += 1;
@@ -198,12 +215,12 @@ fn residual(spec: &GridSpec, u: &[f64], mask: &[u8], f: Option<&[f64]>) -> (f64,
                     }
                 }
             }
-            (sum, n)
+            (max, sum, n)
         })
         .collect();
-    parts
-        .into_iter()
-        .fold((0.0, 0), |a, p| (a.0 + p.0, a.1 + p.1))
+    parts.into_iter().fold((0.0f64, 0.0, 0), |a, p| {
+        (a.0.max(p.0), a.1 + p.1, a.2 + p.2)
+    })
 }
 
 /// The defect plane `z` (0 off the unknowns and on planes without two neighbours).
@@ -390,7 +407,8 @@ impl Flat<'_> {
         let f = f.as_deref().map(Vec::as_slice);
         let u0 = self.u[0].read();
         let st = if measure {
-            residual(self.spec, &u0, &mask, f)
+            let (_, sum, n) = block_stats(self.spec, &u0, None, &mask, f, true);
+            (sum, n)
         } else {
             (0.0, 0)
         };
@@ -437,44 +455,10 @@ impl Flat<'_> {
         // next pre-smoothing overwrites.
         std::mem::swap(&mut *u0, &mut *u1);
         // The largest change against the old state and the residual of the new one, in
-        // one pass, block by block (sums in block order).
-        let [_, ny, nx] = shape;
-        let (sy, sz) = (nx, nx * ny);
-        let spec = self.spec;
-        let (new, old): (&[f64], &[f64]) = (&u0, &u1);
-        let parts: Vec<(f64, f64, u64)> = spec
-            .block_indices()
-            .par_iter()
-            .with_max_len(1)
-            .map(|&b| {
-                let s = spec.block_start(b).map(|c| c as usize);
-                let e = [0, 1, 2].map(|a| s[a] + spec.block_shape(b)[a] as usize);
-                let (mut max, mut sum, mut cnt) = (0.0f64, 0.0, 0u64);
-                for z in s[0]..e[0] {
-                    for y in s[1]..e[1] {
-                        let row = (z * ny + y) * nx;
-                        for i in row + s[2]..row + e[2] {
-                            if mask[i] != INTERIOR {
-                                continue;
-                            }
-                            if change {
-                                max = max.max((new[i] - old[i]).abs());
-                            }
-                            if measure {
-                                let r = defect(new, f, i, sy, sz) / 6.0;
-                                sum += r * r;
-                                cnt += 1;
-                            }
-                        }
-                    }
-                }
-                (max, sum, cnt)
-            })
-            .collect();
-        let (max, sum, cnt) = parts.into_iter().fold((0.0f64, 0.0, 0), |a, p| {
-            (a.0.max(p.0), a.1 + p.1, a.2 + p.2)
-        });
-        let st = (sum, cnt);
+        // one pass.
+        let old = change.then_some(&u1[..]);
+        let (max, sum, n) = block_stats(self.spec, &u0, old, &mask, f, measure);
+        let st = (sum, n);
         (max, st)
     }
 }
