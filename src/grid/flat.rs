@@ -5,7 +5,7 @@
 use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 
 use super::store::check_block;
-use super::{Block, BlockStore, GridError, GridSpec, Scalar};
+use super::{copy_overlap, to_usize, Block, BlockStore, GridError, GridSpec, Scalar};
 use crate::math::{volume, Idx3};
 
 /// A grid held in memory as one C-order array.
@@ -82,26 +82,10 @@ impl<T: Scalar> BlockStore<T> for FlatStore<T> {
         shape: [usize; 3],
         outside: T,
     ) -> Result<Block<T>, GridError> {
-        let g = self.spec.shape.map(|c| c as i64);
+        // The array is one block covering the grid.
         let mut out = Block::filled(origin, shape, outside);
-        let lo = [0, 1, 2].map(|a| origin[a].max(0));
-        let hi = [0, 1, 2].map(|a| (origin[a] + shape[a] as i64).min(g[a]));
-        if (0..3).any(|a| lo[a] >= hi[a]) {
-            return Ok(out);
-        }
         let d = self.read();
-        let n = (hi[2] - lo[2]) as usize;
-        for z in lo[0]..hi[0] {
-            for y in lo[1]..hi[1] {
-                let s = ((z * g[1] + y) * g[2] + lo[2]) as usize;
-                let o = out.offset(
-                    (z - origin[0]) as usize,
-                    (y - origin[1]) as usize,
-                    (lo[2] - origin[2]) as usize,
-                );
-                out.data[o..o + n].copy_from_slice(&d[s..s + n]);
-            }
-        }
+        copy_overlap(&d, [0; 3], to_usize(self.spec.shape), &mut out);
         Ok(out)
     }
 
