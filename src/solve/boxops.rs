@@ -14,6 +14,41 @@
 
 use crate::voxelize::labels::INTERIOR;
 
+/// The defect `f + nb - 6 u` of a voxel whose value is `u` and whose six neighbours sum
+/// to `nb`, added in the order x-, x+, y-, y+, z-, z+. Every kernel (boxes here, whole
+/// arrays in [`super::flat`]) computes through this and [`full_weighting`], so they
+/// give the same bytes.
+#[inline]
+pub(super) fn defect_of(f: f64, nb: f64, u: f64) -> f64 {
+    f + nb - 6.0 * u
+}
+
+/// The defect at offset `i` of a C-order array with strides `sy`, `sz`.
+#[inline]
+pub(super) fn defect_at(u: &[f64], f: Option<&[f64]>, i: usize, sy: usize, sz: usize) -> f64 {
+    let nb = u[i - 1] + u[i + 1] + u[i - sy] + u[i + sy] + u[i - sz] + u[i + sz];
+    defect_of(f.map_or(0.0, |f| f[i]), nb, u[i])
+}
+
+/// Full weighting with the coarse-level scaling at the fine offset `c` of the defect
+/// array `d` (strides `sy`, `sz`): `4 * sum_d w(d) D(c + d)` with `w` = 1/8 at the
+/// center, 1/16 on faces, 1/32 on edges, 1/64 at corners, summed z, y, x.
+#[inline]
+pub(super) fn full_weighting(d: &[f64], c: usize, sy: usize, sz: usize) -> f64 {
+    const W: [f64; 3] = [0.5, 1.0, 0.5];
+    let mut s = 0.0;
+    for (dz, wz) in W.iter().enumerate() {
+        for (dy, wy) in W.iter().enumerate() {
+            for (dx, wx) in W.iter().enumerate() {
+                let i = c + dz * sz + dy * sy + dx - sz - sy - 1;
+                s += wz * wy * wx * d[i];
+            }
+        }
+    }
+    // Weights above sum to 8; full weighting's sum to 1; times 4.
+    s * 0.5
+}
+
 /// A box of a level held in memory: `u`, the mask and (coarse levels) `f`, all of
 /// `shape`, whose first voxel sits at global index `origin`.
 pub struct BoxView<'a> {
@@ -38,9 +73,7 @@ impl BoxView<'_> {
     #[inline]
     fn defect(&self, i: usize) -> f64 {
         let (sy, sz) = self.strides();
-        let u = &*self.u;
-        let nb = u[i - 1] + u[i + 1] + u[i - sy] + u[i + sy] + u[i - sz] + u[i + sz];
-        self.f.map_or(0.0, |f| f[i]) + nb - 6.0 * u[i]
+        defect_at(self.u, self.f, i, sy, sz)
     }
 
     /// One red-black half-sweep of `color` (0 red, 1 black) over the local sub-box
@@ -63,7 +96,7 @@ impl BoxView<'_> {
                     }
                     let u = &mut *self.u;
                     let nb = u[i - 1] + u[i + 1] + u[i - sy] + u[i + sy] + u[i - sz] + u[i + sz];
-                    let d = w * (self.f.map_or(0.0, |f| f[i]) + nb - 6.0 * u[i]);
+                    let d = w * defect_of(self.f.map_or(0.0, |f| f[i]), nb, u[i]);
                     u[i] += d;
                     max = max.max(d.abs());
                 }
@@ -177,7 +210,6 @@ pub fn restrict(
     c_origin: [i64; 3],
     c_shape: [usize; 3],
 ) -> Vec<f64> {
-    const W: [f64; 3] = [0.5, 1.0, 0.5];
     let mut out = vec![0.0; c_shape.iter().product()];
     let (sy, sz) = (d_shape[2], d_shape[2] * d_shape[1]);
     for z in 0..c_shape[0] {
@@ -190,17 +222,7 @@ pub fn restrict(
                 let g = [z, y, x].map(|v| v as i64);
                 let l = [0, 1, 2].map(|a| (2 * (c_origin[a] + g[a]) - d_origin[a]) as usize);
                 let c = (l[0] * d_shape[1] + l[1]) * d_shape[2] + l[2];
-                let mut s = 0.0;
-                for (dz, wz) in W.iter().enumerate() {
-                    for (dy, wy) in W.iter().enumerate() {
-                        for (dx, wx) in W.iter().enumerate() {
-                            let i = c + dz * sz + dy * sy + dx - sz - sy - 1;
-                            s += wz * wy * wx * d[i];
-                        }
-                    }
-                }
-                // Weights above sum to 8; full weighting's sum to 1; times 4.
-                out[o] = s * 0.5;
+                out[o] = full_weighting(d, c, sy, sz);
             }
         }
     }

@@ -14,6 +14,8 @@
 
 use rayon::prelude::*;
 
+use super::boxops::{defect_at, defect_of, full_weighting};
+
 use crate::grid::{FlatStore, GridSpec};
 use crate::voxelize::labels::INTERIOR;
 
@@ -152,7 +154,7 @@ impl Rows<'_> {
         let (ym, yp, zm, zp) = (&self.ym[..n], &self.yp[..n], &self.zm[..n], &self.zp[..n]);
         for x in (first..end).step_by(2) {
             let nb = row[x - 1] + row[x + 1] + ym[x] + yp[x] + zm[x] + zp[x];
-            let d = w * (f.map_or(0.0, |f| f[x]) + nb - 6.0 * row[x]);
+            let d = w * defect_of(f.map_or(0.0, |f| f[x]), nb, row[x]);
             row[x] += d;
         }
     }
@@ -164,13 +166,6 @@ fn sweeps(u: &mut [f64], runs: &Runs, f: Option<&[f64]>, shape: [usize; 3], n: u
         half_sweep(u, runs, f, shape, 0, 1.0);
         half_sweep(u, runs, f, shape, 1, 1.0);
     }
-}
-
-/// `f + sum of neighbours - 6 u` at unknown `i`.
-#[inline]
-fn defect(u: &[f64], f: Option<&[f64]>, i: usize, sy: usize, sz: usize) -> f64 {
-    let nb = u[i - 1] + u[i + 1] + u[i - sy] + u[i + sy] + u[i - sz] + u[i + sz];
-    f.map_or(0.0, |f| f[i]) + nb - 6.0 * u[i]
 }
 
 /// Over the unknowns of `u`: the largest |u - old| (with `old`), and the sum of squares
@@ -208,7 +203,7 @@ fn block_stats(
                             max = max.max((u[i] - old[i]).abs());
                         }
                         if measure {
-                            let r = defect(u, f, i, sy, sz) / 6.0;
+                            let r = defect_at(u, f, i, sy, sz) / 6.0;
                             sum += r * r;
                             n += 1;
                         }
@@ -243,7 +238,7 @@ fn defect_plane(
         let row = (z * ny + y) * nx;
         for x in 1..nx - 1 {
             if mask[row + x] == INTERIOR {
-                out[y * nx + x] = defect(u, f, row + x, sy, sz);
+                out[y * nx + x] = defect_at(u, f, row + x, sy, sz);
             }
         }
     }
@@ -261,7 +256,6 @@ fn restrict(
     cmask: &[u8],
     cf: &mut [f64],
 ) {
-    const W: [f64; 3] = [0.5, 1.0, 0.5];
     let [_, ny, nx] = fine;
     let [_, cny, cnx] = coarse;
     let cp = cny * cnx;
@@ -283,17 +277,7 @@ fn restrict(
                     out[o] = 0.0;
                     continue;
                 }
-                let c = p + (2 * yc) * nx + 2 * xc;
-                let mut s = 0.0;
-                for (dz, wz) in W.iter().enumerate() {
-                    for (dy, wy) in W.iter().enumerate() {
-                        for (dx, wx) in W.iter().enumerate() {
-                            let i = c + dz * p + dy * nx + dx - p - nx - 1;
-                            s += wz * wy * wx * d[i];
-                        }
-                    }
-                }
-                out[o] = s * 0.5;
+                out[o] = full_weighting(&d, p + (2 * yc) * nx + 2 * xc, nx, p);
             }
         }
     });
