@@ -29,6 +29,25 @@ where
     pool.install(|| items.par_iter().with_max_len(1).map(&f).collect())
 }
 
+/// Buffers lent to the tasks of parallel passes and taken back: a pass over many boxes
+/// or planes then allocates about one buffer per thread, once, instead of one per task
+/// and every time (large allocations are fresh pages from the system, each one
+/// faulted in).
+#[derive(Debug, Default)]
+pub struct Pool<T>(std::sync::Mutex<Vec<T>>);
+
+impl<T: Default> Pool<T> {
+    /// Run `f` with a buffer from the pool (a new one when none is free), then return
+    /// the buffer to the pool.
+    pub fn with<R>(&self, f: impl FnOnce(&mut T) -> R) -> R {
+        let taken = self.0.lock().expect("pool lock").pop();
+        let mut buf = taken.unwrap_or_default();
+        let r = f(&mut buf);
+        self.0.lock().expect("pool lock").push(buf);
+        r
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -42,5 +61,17 @@ mod tests {
         }
         let e = map_bounded(&items, 2, |&i| if i == 50 { Err(i) } else { Ok(i) });
         assert_eq!(e, Err(50));
+    }
+
+    #[test]
+    fn a_pool_lends_its_buffers_again() {
+        let pool: Pool<Vec<u8>> = Pool::default();
+        pool.with(|b| b.reserve(1000));
+        // The same buffer comes back, with its allocation.
+        assert!(pool.with(|b| b.capacity()) >= 1000);
+        // Nested use needs a second buffer.
+        let caps = pool.with(|a| (a.capacity(), pool.with(|b| b.capacity())));
+        assert!(caps.0 >= 1000 && caps.1 == 0, "{caps:?}");
+        assert_eq!(pool.0.lock().unwrap().len(), 2);
     }
 }

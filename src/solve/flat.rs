@@ -14,9 +14,13 @@
 
 use rayon::prelude::*;
 
-use super::boxops::{defect_at, defect_of, full_weighting};
+use super::boxops::{
+    correction_energy, defect_at, defect_of, full_weighting, prolong_into, ProlongBufs,
+};
+use super::multigrid::{block_within_box, box_of, coarse_cover};
 
-use crate::grid::{FlatStore, GridSpec};
+use crate::grid::{copy_overlap, Block, FlatStore, GridSpec};
+use crate::parallel::Pool;
 use crate::voxelize::labels::INTERIOR;
 
 /// The unknowns of a level as runs along x: for each plane, `(y, x0, x1)` with every
@@ -54,6 +58,33 @@ impl Runs {
             .collect();
         Self { planes }
     }
+
+    /// The runs of plane `z` in rows `y0..y1`, clipped to the columns `x0..x1` (empty
+    /// ones dropped), in row order.
+    fn clipped(
+        &self,
+        z: usize,
+        [y0, y1]: [usize; 2],
+        [x0, x1]: [usize; 2],
+    ) -> impl Iterator<Item = (usize, usize, usize)> + '_ {
+        let plane = &self.planes[z];
+        let from = plane.partition_point(|r| (r.0 as usize) < y0);
+        plane[from..]
+            .iter()
+            .take_while(move |r| (r.0 as usize) < y1)
+            .map(move |&(y, a, b)| (y as usize, (a as usize).max(x0), (b as usize).min(x1)))
+            .filter(|r| r.1 < r.2)
+    }
+}
+
+/// What the whole-array passes of a level keep between passes: the runs of its
+/// unknowns (built on first use) and buffers lent to the passes' tasks.
+#[derive(Default)]
+pub struct Cache {
+    runs: std::sync::OnceLock<Runs>,
+    planes: Pool<Vec<f64>>,
+    prolong: Pool<PlanePair>,
+    boxes: Pool<(Block<u8>, Block<f64>, ProlongBufs)>,
 }
 
 fn dims(spec: &GridSpec) -> [usize; 3] {
@@ -62,6 +93,11 @@ fn dims(spec: &GridSpec) -> [usize; 3] {
 
 /// One red-black half-sweep of `color` over the whole grid, in place. `f`: the
 /// right-hand side (coarse levels).
+///
+/// The planes `1..nz-1` are cut into slabs, several per thread, relaxed in two rounds:
+/// the even slabs, then the odd ones. A slab reads the planes next to it, which belong
+/// to slabs of the other round (or are the grid's first and last planes), so a round
+/// borrows its own slabs mutably and the others shared: no copies and no locks.
 fn half_sweep(
     u: &mut [f64],
     runs: &Runs,
@@ -76,44 +112,46 @@ fn half_sweep(
     }
     let p = ny * nx;
     let w = omega / 6.0;
-    // Slabs of planes 1..nz-1, a few per thread.
-    let tasks = (4 * rayon::current_num_threads()).min(nz - 2).max(1);
-    let per = (nz - 2).div_ceil(tasks);
-    let bounds: Vec<(usize, usize)> = (1..nz - 1)
-        .step_by(per)
-        .map(|a| (a, (a + per).min(nz - 1)))
-        .collect();
-    let ghosts: Vec<(Vec<f64>, Vec<f64>)> = bounds
-        .iter()
-        .map(|&(a, b)| {
-            (
-                u[(a - 1) * p..a * p].to_vec(),
-                u[b * p..(b + 1) * p].to_vec(),
-            )
-        })
-        .collect();
-    let mut parts = Vec::with_capacity(bounds.len());
-    let mut rest = &mut u[p..(nz - 1) * p];
-    for &(a, b) in &bounds {
-        let (head, tail) = rest.split_at_mut((b - a) * p);
-        parts.push(head);
-        rest = tail;
-    }
-    parts
-        .into_par_iter()
-        .zip(bounds)
-        .zip(ghosts)
-        .for_each(|((part, (a, b)), (below, above))| {
+    let slabs = (8 * rayon::current_num_threads()).min(nz - 2).max(1);
+    let per = (nz - 2).div_ceil(slabs);
+    for round in 0..2 {
+        // Piece 0 is plane 0, piece i (1 ..) slab i - 1 from plane 1 + (i - 1) per, the
+        // last piece plane nz - 1.
+        let (first, mut rest) = u.split_at_mut(p);
+        let mut pieces = vec![first];
+        while rest.len() > p {
+            let (head, tail) = rest.split_at_mut(per.min(rest.len() / p - 1) * p);
+            pieces.push(head);
+            rest = tail;
+        }
+        pieces.push(rest);
+        let last = pieces.len() - 1;
+        let mut shared: Vec<Option<&[f64]>> = Vec::with_capacity(pieces.len());
+        let mut work = Vec::new();
+        for (i, piece) in pieces.into_iter().enumerate() {
+            if i > 0 && i < last && (i - 1) % 2 == round {
+                work.push((i, piece));
+                shared.push(None);
+            } else {
+                shared.push(Some(piece));
+            }
+        }
+        let shared = &shared;
+        work.into_par_iter().for_each(|(i, part)| {
+            let below = shared[i - 1].expect("the slabs next to a slab are in the other round");
+            let above = shared[i + 1].expect("the slabs next to a slab are in the other round");
+            let a = 1 + (i - 1) * per;
+            let b = a + part.len() / p;
             for z in a..b {
                 let k = z - a;
                 let (before, after) = part.split_at_mut(k * p);
                 let (cur, after) = after.split_at_mut(p);
                 let prev: &[f64] = if k == 0 {
-                    &below
+                    &below[below.len() - p..]
                 } else {
                     &before[(k - 1) * p..k * p]
                 };
-                let next: &[f64] = if z + 1 == b { &above } else { &after[..p] };
+                let next: &[f64] = if z + 1 == b { &above[..p] } else { &after[..p] };
                 let fz = f.map(|f| &f[z * p..(z + 1) * p]);
                 for &(y, x0, x1) in &runs.planes[z] {
                     let (y, x0, x1) = (y as usize, x0 as usize, x1 as usize);
@@ -135,6 +173,7 @@ fn half_sweep(
                 }
             }
         });
+    }
 }
 
 /// The rows around the row being relaxed: y - 1, y + 1, z - 1 and z + 1.
@@ -161,7 +200,11 @@ impl Rows<'_> {
 }
 
 /// `sweeps` red-black sweeps (red, then black) of the whole grid, in place.
-fn sweeps(u: &mut [f64], runs: &Runs, f: Option<&[f64]>, shape: [usize; 3], n: usize) {
+fn sweeps(u: &mut [f64], cache: &Cache, f: Option<&[f64]>, shape: [usize; 3], n: usize) {
+    let runs = cache
+        .runs
+        .get()
+        .expect("runs are built with the level's Flat");
     for _ in 0..n {
         half_sweep(u, runs, f, shape, 0, 1.0);
         half_sweep(u, runs, f, shape, 1, 1.0);
@@ -175,7 +218,7 @@ fn block_stats(
     spec: &GridSpec,
     u: &[f64],
     old: Option<&[f64]>,
-    mask: &[u8],
+    runs: &Runs,
     f: Option<&[f64]>,
     measure: bool,
 ) -> (f64, f64, u64) {
@@ -193,12 +236,9 @@ fn block_stats(
             let e = [0, 1, 2].map(|a| s[a] + spec.block_shape(b)[a] as usize);
             let (mut max, mut sum, mut n) = (0.0f64, 0.0, 0u64);
             for z in s[0]..e[0] {
-                for y in s[1]..e[1] {
+                for (y, x0, x1) in runs.clipped(z, [s[1], e[1]], [s[2], e[2]]) {
                     let row = (z * ny + y) * nx;
-                    for i in row + s[2]..row + e[2] {
-                        if mask[i] != INTERIOR {
-                            continue;
-                        }
+                    for i in row + x0..row + x1 {
                         if let Some(old) = old {
                             max = max.max((u[i] - old[i]).abs());
                         }
@@ -218,10 +258,10 @@ fn block_stats(
     })
 }
 
-/// The defect plane `z` (0 off the unknowns and on planes without two neighbours).
+/// The defect plane `z` (0 off the unknowns, and off the grid).
 fn defect_plane(
     u: &[f64],
-    mask: &[u8],
+    runs: &Runs,
     f: Option<&[f64]>,
     shape: [usize; 3],
     z: i64,
@@ -229,76 +269,134 @@ fn defect_plane(
 ) {
     let [nz, ny, nx] = shape;
     out.fill(0.0);
-    if z < 1 || z as usize + 1 >= nz {
+    if z < 0 || z as usize >= nz {
         return;
     }
     let z = z as usize;
     let (sy, sz) = (nx, nx * ny);
-    for y in 1..ny - 1 {
+    for &(y, x0, x1) in &runs.planes[z] {
+        let (y, x0, x1) = (y as usize, x0 as usize, x1 as usize);
         let row = (z * ny + y) * nx;
-        for x in 1..nx - 1 {
-            if mask[row + x] == INTERIOR {
-                out[y * nx + x] = defect_at(u, f, row + x, sy, sz);
-            }
+        for x in x0..x1 {
+            out[y * nx + x] = defect_at(u, f, row + x, sy, sz);
         }
     }
 }
 
 /// Full weighting of the defect of the fine level into the coarse right-hand side
 /// (the same weights and order as [`super::boxops::restrict`]), and 0 off the coarse
-/// unknowns.
+/// unknowns. Parallel over slabs of coarse planes; within a slab, the fine defect
+/// plane `2 zc + 1` of one coarse plane is the plane `2 zc' - 1` of the next, and is
+/// kept rather than computed twice.
+#[allow(clippy::too_many_arguments)]
 fn restrict(
     fine: [usize; 3],
     u: &[f64],
-    mask: &[u8],
+    runs: &Runs,
     f: Option<&[f64]>,
     coarse: [usize; 3],
     cmask: &[u8],
     cf: &mut [f64],
+    planes: &Pool<Vec<f64>>,
 ) {
     let [_, ny, nx] = fine;
-    let [_, cny, cnx] = coarse;
-    let cp = cny * cnx;
-    cf.par_chunks_mut(cp).enumerate().for_each(|(zc, out)| {
-        let cm = &cmask[zc * cp..(zc + 1) * cp];
-        if !cm.contains(&INTERIOR) {
-            out.fill(0.0);
-            return;
-        }
-        let mut d = vec![0.0; 3 * ny * nx];
-        for (k, plane) in d.chunks_exact_mut(ny * nx).enumerate() {
-            defect_plane(u, mask, f, fine, 2 * zc as i64 - 1 + k as i64, plane);
-        }
-        let p = ny * nx;
-        for yc in 0..cny {
-            for xc in 0..cnx {
-                let o = yc * cnx + xc;
-                if cm[o] != INTERIOR {
-                    out[o] = 0.0;
-                    continue;
+    let [cnz, cny, cnx] = coarse;
+    let (p, cp) = (ny * nx, cny * cnx);
+    let per = cnz.div_ceil(8 * rayon::current_num_threads()).max(1);
+    cf.par_chunks_mut(per * cp)
+        .enumerate()
+        .for_each(|(slab, outs)| {
+            planes.with(|d| {
+                d.resize(3 * p, 0.0);
+                // The fine plane held in d's last third.
+                let mut last: Option<i64> = None;
+                for (k, out) in outs.chunks_exact_mut(cp).enumerate() {
+                    let zc = slab * per + k;
+                    let cm = &cmask[zc * cp..(zc + 1) * cp];
+                    if !cm.contains(&INTERIOR) {
+                        out.fill(0.0);
+                        continue;
+                    }
+                    let z0 = 2 * zc as i64 - 1;
+                    if last == Some(z0) {
+                        d.copy_within(2 * p.., 0);
+                    } else {
+                        defect_plane(u, runs, f, fine, z0, &mut d[..p]);
+                    }
+                    defect_plane(u, runs, f, fine, z0 + 1, &mut d[p..2 * p]);
+                    defect_plane(u, runs, f, fine, z0 + 2, &mut d[2 * p..]);
+                    last = Some(z0 + 2);
+                    for yc in 0..cny {
+                        for xc in 0..cnx {
+                            let o = yc * cnx + xc;
+                            out[o] = if cm[o] == INTERIOR {
+                                full_weighting(d, p + (2 * yc) * nx + 2 * xc, nx, p)
+                            } else {
+                                0.0
+                            };
+                        }
+                    }
                 }
-                out[o] = full_weighting(&d, p + (2 * yc) * nx + 2 * xc, nx, p);
-            }
+            });
+        });
+}
+
+/// Coarse planes interpolated in x and y onto the fine plane (see [`prolong_add`]),
+/// two of them, tagged with the coarse plane each holds.
+#[derive(Default)]
+pub struct PlanePair {
+    tag: [Option<usize>; 2],
+    buf: [Vec<f64>; 2],
+    ex: Vec<f64>,
+}
+
+impl PlanePair {
+    /// The slot holding coarse plane `zc`, filled by `fill` unless it is there already;
+    /// the slot holding `keep` is not overwritten.
+    fn get(
+        &mut self,
+        zc: usize,
+        keep: Option<usize>,
+        fill: impl Fn(usize, &mut Vec<f64>, &mut Vec<f64>),
+    ) -> usize {
+        if let Some(k) = (0..2).find(|&k| self.tag[k] == Some(zc)) {
+            return k;
         }
-    });
+        let k = if keep.is_some() && self.tag[0] == keep {
+            1
+        } else if keep.is_some() && self.tag[1] == keep {
+            0
+        } else {
+            // The older one.
+            usize::from(self.tag[1] < self.tag[0])
+        };
+        fill(zc, &mut self.ex, &mut self.buf[k]);
+        self.tag[k] = Some(zc);
+        k
+    }
 }
 
 /// `u += scale * P e` at the unknowns, `P` trilinear interpolation from the coarse
 /// level, axis by axis in the order of [`super::boxops::prolong`] (x, then y, then z).
+/// Parallel over slabs of fine planes; a slab interpolates each coarse plane it needs
+/// in x and y once (a fine plane takes one or two of them, its neighbours share them).
+#[allow(clippy::too_many_arguments)]
 fn prolong_add(
     fine: [usize; 3],
     u: &mut [f64],
-    mask: &[u8],
+    runs: &Runs,
     coarse: [usize; 3],
     e: &[f64],
     scale: f64,
+    pool: &Pool<PlanePair>,
 ) {
     let [nz, ny, nx] = fine;
     let [_, cny, cnx] = coarse;
     let p = ny * nx;
     // The coarse plane `zc` interpolated in x and then y, at the fine interior nodes.
-    let plane_xy = |zc: usize, out: &mut Vec<f64>| {
-        let mut ex = vec![0.0; cny * nx];
+    let plane_xy = |zc: usize, ex: &mut Vec<f64>, out: &mut Vec<f64>| {
+        ex.clear();
+        ex.resize(cny * nx, 0.0);
         for yc in 0..cny {
             let src = &e[(zc * cny + yc) * cnx..][..cnx];
             for x in 1..nx - 1 {
@@ -324,30 +422,36 @@ fn prolong_add(
             }
         }
     };
-    u.par_chunks_mut(p).enumerate().for_each(|(z, uz)| {
-        if z == 0 || z + 1 >= nz {
-            return;
-        }
-        let m = &mask[z * p..(z + 1) * p];
-        if !m.contains(&INTERIOR) {
-            return;
-        }
-        let (mut a, mut b) = (Vec::new(), Vec::new());
-        plane_xy(z / 2, &mut a);
-        if z % 2 == 1 {
-            plane_xy(z / 2 + 1, &mut b);
-        }
-        for i in 0..p {
-            if m[i] == INTERIOR {
-                let c = if z % 2 == 1 {
-                    0.5 * (a[i] + b[i])
-                } else {
-                    a[i]
-                };
-                uz[i] += scale * c;
-            }
-        }
-    });
+    let per = nz.div_ceil(8 * rayon::current_num_threads()).max(1);
+    u.par_chunks_mut(per * p)
+        .enumerate()
+        .for_each(|(slab, planes)| {
+            pool.with(|pair| {
+                pair.tag = [None; 2];
+                for (k, uz) in planes.chunks_exact_mut(p).enumerate() {
+                    let z = slab * per + k;
+                    if z == 0 || z + 1 >= nz || runs.planes[z].is_empty() {
+                        continue;
+                    }
+                    let zc = z / 2;
+                    let odd = z % 2 == 1;
+                    let ka = pair.get(zc, odd.then_some(zc + 1), plane_xy);
+                    let kb = if odd {
+                        pair.get(zc + 1, Some(zc), plane_xy)
+                    } else {
+                        ka
+                    };
+                    let (a, b) = (&pair.buf[ka], &pair.buf[kb]);
+                    for &(y, x0, x1) in &runs.planes[z] {
+                        let r = y as usize * nx;
+                        for i in r + x0 as usize..r + x1 as usize {
+                            let c = if odd { 0.5 * (a[i] + b[i]) } else { a[i] };
+                            uz[i] += scale * c;
+                        }
+                    }
+                }
+            });
+        });
 }
 
 /// A level held as whole arrays.
@@ -360,8 +464,8 @@ pub struct Flat<'a> {
     pub u: [&'a FlatStore<f64>; 2],
     /// The right-hand side (coarse levels).
     pub f: Option<&'a FlatStore<f64>>,
-    /// The unknowns as runs along x.
-    pub runs: &'a Runs,
+    /// The runs of the unknowns and the passes' buffers.
+    pub cache: &'a Cache,
 }
 
 impl Flat<'_> {
@@ -372,7 +476,12 @@ impl Flat<'_> {
         Some(Flat {
             spec: &l.spec,
             mask,
-            runs: l.runs.get_or_init(|| Runs::of(&mask.read(), dims(&l.spec))),
+            cache: {
+                l.flat
+                    .runs
+                    .get_or_init(|| Runs::of(&mask.read(), dims(&l.spec)));
+                &l.flat
+            },
             u: [l.u[0].as_flat()?, l.u[1].as_flat()?],
             f: match &l.f {
                 Some(f) => Some(f.as_flat()?),
@@ -381,17 +490,53 @@ impl Flat<'_> {
         })
     }
 
+    fn runs(&self) -> &Runs {
+        self.cache
+            .runs
+            .get()
+            .expect("Flat::of builds the runs of the level")
+    }
+
+    /// `c . A c` of the interpolated correction `c = P e` of `coarse` (see
+    /// [`super::boxops::correction_energy`]), block by block in block order with the
+    /// block passes' arithmetic; buffers are kept per thread.
+    #[must_use]
+    pub fn correction_energy(&self, coarse: &Flat<'_>) -> f64 {
+        let spec = self.spec;
+        let (fine_dims, coarse_dims) = (dims(spec), dims(coarse.spec));
+        let mask = self.mask.read();
+        let e = coarse.u[0].read();
+        let parts: Vec<f64> = spec
+            .block_indices()
+            .par_iter()
+            .with_max_len(1)
+            .map(|&b| {
+                self.cache.boxes.with(|(m, ec, pb)| {
+                    let (origin, shape, _) = box_of(spec, b, 1);
+                    m.refill(origin, shape, 0);
+                    copy_overlap(&mask, [0; 3], fine_dims, m);
+                    let (clo, cshape) = coarse_cover(origin, shape);
+                    ec.refill(clo, cshape, 0.0);
+                    copy_overlap(&e, [0; 3], coarse_dims, ec);
+                    let (lo, hi) = block_within_box(spec, b, origin);
+                    let c = prolong_into(&ec.data, clo, cshape, origin, shape, pb);
+                    correction_energy(&m.data, c, shape, lo, hi)
+                })
+            })
+            .collect();
+        parts.into_iter().sum()
+    }
+
     /// Pre-smoothing: generation 1 = generation 0 after `n` sweeps; with `measure`, the
     /// residual of generation 0 first; then the restriction of the defect into
     /// `coarse` (its right-hand side, and a zero correction in its generation 0).
     pub fn pre(&self, n: usize, measure: bool, coarse: &Flat<'_>) -> (f64, u64) {
         let shape = dims(self.spec);
-        let mask = self.mask.read();
         let f = self.f.map(FlatStore::read);
         let f = f.as_deref().map(Vec::as_slice);
         let u0 = self.u[0].read();
         let st = if measure {
-            let (_, sum, n) = block_stats(self.spec, &u0, None, &mask, f, true);
+            let (_, sum, n) = block_stats(self.spec, &u0, None, self.runs(), f, true);
             (sum, n)
         } else {
             (0.0, 0)
@@ -401,13 +546,22 @@ impl Flat<'_> {
             .zip(u0.par_chunks(1 << 16))
             .for_each(|(d, s)| d.copy_from_slice(s));
         drop(u0);
-        sweeps(&mut u1, self.runs, f, shape, n);
+        sweeps(&mut u1, self.cache, f, shape, n);
         let cmask = coarse.mask.read();
         let mut cf = coarse
             .f
             .expect("coarse levels have a right-hand side")
             .write();
-        restrict(shape, &u1, &mask, f, dims(coarse.spec), &cmask, &mut cf);
+        restrict(
+            shape,
+            &u1,
+            self.runs(),
+            f,
+            dims(coarse.spec),
+            &cmask,
+            &mut cf,
+            &self.cache.planes,
+        );
         coarse.u[0].write().par_iter_mut().for_each(|v| *v = 0.0);
         st
     }
@@ -425,15 +579,22 @@ impl Flat<'_> {
         measure: bool,
     ) -> (f64, (f64, u64)) {
         let shape = dims(self.spec);
-        let mask = self.mask.read();
         let f = self.f.map(FlatStore::read);
         let f = f.as_deref().map(Vec::as_slice);
         let mut u1 = self.u[1].write();
         {
             let e = coarse.u[0].read();
-            prolong_add(shape, &mut u1, &mask, dims(coarse.spec), &e, alpha);
+            prolong_add(
+                shape,
+                &mut u1,
+                self.runs(),
+                dims(coarse.spec),
+                &e,
+                alpha,
+                &self.cache.prolong,
+            );
         }
-        sweeps(&mut u1, self.runs, f, shape, n);
+        sweeps(&mut u1, self.cache, f, shape, n);
         let mut u0 = self.u[0].write();
         // The result becomes generation 0; generation 1 keeps the old state, which the
         // next pre-smoothing overwrites.
@@ -441,7 +602,7 @@ impl Flat<'_> {
         // The largest change against the old state and the residual of the new one, in
         // one pass.
         let old = change.then_some(&u1[..]);
-        let (max, sum, n) = block_stats(self.spec, &u0, old, &mask, f, measure);
+        let (max, sum, n) = block_stats(self.spec, &u0, old, self.runs(), f, measure);
         let st = (sum, n);
         (max, st)
     }

@@ -106,8 +106,8 @@ pub struct Level {
     pub u: [Box<dyn BlockStore<f64>>; 2],
     /// `None` on the finest level (0).
     pub f: Option<Box<dyn BlockStore<f64>>>,
-    /// Runs of unknowns along x, for a level held as arrays (built on first use).
-    pub runs: std::sync::OnceLock<super::flat::Runs>,
+    /// For a level held as arrays: the runs of unknowns and the passes' buffers.
+    pub flat: super::flat::Cache,
 }
 
 /// The shape of the level below `shape`: nodes at even fine indices.
@@ -215,10 +215,23 @@ fn restrict_block(view: &BoxView<'_>, c: &Level, b: Idx3) -> Result<(), GridErro
 }
 
 /// The coarse nodes under a fine box, one more on each side.
-fn coarse_cover(origin: [i64; 3], shape: [usize; 3]) -> ([i64; 3], [usize; 3]) {
+pub(super) fn coarse_cover(origin: [i64; 3], shape: [usize; 3]) -> ([i64; 3], [usize; 3]) {
     let clo = origin.map(|v| v.div_euclid(2));
     let chi = [0, 1, 2].map(|a| (origin[a] + shape[a] as i64 - 1).div_euclid(2) + 2);
     (clo, [0, 1, 2].map(|a| (chi[a] - clo[a]) as usize))
+}
+
+/// Block `b` in the local coordinates of a box of it whose first voxel is `origin`:
+/// `[lo, hi)`.
+pub(super) fn block_within_box(
+    spec: &GridSpec,
+    b: Idx3,
+    origin: [i64; 3],
+) -> ([usize; 3], [usize; 3]) {
+    let bs = spec.block_start(b);
+    let lo = [0, 1, 2].map(|a| (bs[a] as i64 - origin[a]) as usize);
+    let hi = [0, 1, 2].map(|a| lo[a] + spec.block_shape(b)[a] as usize);
+    (lo, hi)
 }
 
 /// The multigrid hierarchy.
@@ -256,7 +269,11 @@ impl PassStats {
     }
 }
 
-fn box_of(spec: &GridSpec, b: Idx3, halo: u64) -> ([i64; 3], [usize; 3], [[bool; 2]; 3]) {
+pub(super) fn box_of(
+    spec: &GridSpec,
+    b: Idx3,
+    halo: u64,
+) -> ([i64; 3], [usize; 3], [[bool; 2]; 3]) {
     let s = spec.block_start(b);
     let e = [0, 1, 2].map(|a| s[a] + spec.block_shape(b)[a]);
     let lo = [0, 1, 2].map(|a| s[a].saturating_sub(halo));
@@ -450,19 +467,21 @@ impl Level {
             Ok::<_, GridError>(e.iter().zip(&f).map(|(a, b)| a * b).sum::<f64>())
         })?;
         let num = 2.0 * nums.into_iter().sum::<f64>();
-        let spec = &self.spec;
-        let dens = map_bounded(&spec.block_indices(), workers, |&b| {
-            let (origin, shape, _) = box_of(spec, b, 1);
-            let mask = self.mask.read_region(origin, shape, 0)?;
-            let (clo, cshape) = coarse_cover(origin, shape);
-            let e = coarse.u[0].read_region(clo, cshape, 0.0)?;
-            let bs = spec.block_start(b);
-            let lo = [0, 1, 2].map(|a| (bs[a] as i64 - origin[a]) as usize);
-            let hi = [0, 1, 2].map(|a| lo[a] + spec.block_shape(b)[a] as usize);
-            let c = prolong(&e.data, clo, cshape, origin, shape);
-            Ok(correction_energy(&mask.data, &c, shape, lo, hi))
-        })?;
-        let den = dens.into_iter().sum::<f64>();
+        let den = if let (Some(f), Some(c)) = (Flat::of(self), Flat::of(coarse)) {
+            f.correction_energy(&c)
+        } else {
+            let spec = &self.spec;
+            let dens = map_bounded(&spec.block_indices(), workers, |&b| {
+                let (origin, shape, _) = box_of(spec, b, 1);
+                let mask = self.mask.read_region(origin, shape, 0)?;
+                let (clo, cshape) = coarse_cover(origin, shape);
+                let e = coarse.u[0].read_region(clo, cshape, 0.0)?;
+                let (lo, hi) = block_within_box(spec, b, origin);
+                let c = prolong(&e.data, clo, cshape, origin, shape);
+                Ok(correction_energy(&mask.data, &c, shape, lo, hi))
+            })?;
+            dens.into_iter().sum::<f64>()
+        };
         Ok(if den > 0.0 && num > 0.0 {
             (num / den).clamp(0.5, 4.0)
         } else {
@@ -546,7 +565,7 @@ impl Hierarchy {
                 mask,
                 u,
                 f,
-                runs: std::sync::OnceLock::new(),
+                flat: super::flat::Cache::default(),
             });
         }
         Ok(Self {

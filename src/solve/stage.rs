@@ -456,7 +456,7 @@ pub fn solve(
             maker.make::<f64>("phi_b", &spec, mem0, 0.0)?,
         ],
         f: None,
-        runs: std::sync::OnceLock::new(),
+        flat: super::flat::Cache::default(),
     };
     let h = Hierarchy::build(
         fine,
