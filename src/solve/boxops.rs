@@ -164,9 +164,16 @@ impl BoxView<'_> {
     }
 }
 
+/// The term of `c . A c` at an unknown with correction `c` and neighbour sum `nb`.
+#[inline]
+pub(super) fn energy_term(c: f64, nb: f64) -> f64 {
+    c * (6.0 * c - nb)
+}
+
 /// `c . A c` over the unknowns of the local sub-box `[lo, hi)` of a box of `shape`
 /// (which must leave a voxel on every side of it), for a correction `c` on that box
-/// taken as 0 off the unknowns; `A c = 6 c - sum of neighbours`.
+/// taken as 0 off the unknowns; `A c = 6 c - sum of neighbours`. Summed plane by plane
+/// (z), each plane in y, x order.
 #[must_use]
 pub fn correction_energy(
     mask: &[u8],
@@ -180,16 +187,21 @@ pub fn correction_energy(
     let at = |j: usize| if mask[j] == INTERIOR { c[j] } else { 0.0 };
     let mut den = 0.0;
     for z in lo[0]..hi[0] {
+        // Summed plane by plane (the whole-array pass sums the same way).
+        let mut plane = 0.0;
         for y in lo[1]..hi[1] {
             let row = (z * ny + y) * nx;
             for i in row + lo[2]..row + hi[2] {
                 if mask[i] != INTERIOR {
                     continue;
                 }
-                let nb = at(i - 1) + at(i + 1) + at(i - sy) + at(i + sy) + at(i - sz) + at(i + sz);
-                den += c[i] * (6.0 * c[i] - nb);
+                plane += energy_term(
+                    c[i],
+                    at(i - 1) + at(i + 1) + at(i - sy) + at(i + sy) + at(i - sz) + at(i + sz),
+                );
             }
         }
+        den += plane;
     }
     den
 }

@@ -12,14 +12,13 @@
 //! nodes of the other color, which the half-sweep does not change, so each slab takes
 //! copies of the two planes next to it and updates its own planes alone.
 
+use std::sync::atomic::{AtomicBool, Ordering};
+
 use rayon::prelude::*;
 
-use super::boxops::{
-    correction_energy, defect_at, defect_of, full_weighting, prolong_into, ProlongBufs,
-};
-use super::multigrid::{block_within_box, box_of, coarse_cover};
+use super::boxops::{defect_at, defect_of, energy_term, full_weighting};
 
-use crate::grid::{copy_overlap, Block, FlatStore, GridSpec};
+use crate::grid::{FlatStore, GridSpec};
 use crate::parallel::Pool;
 use crate::voxelize::labels::INTERIOR;
 
@@ -82,9 +81,12 @@ impl Runs {
 #[derive(Default)]
 pub struct Cache {
     runs: std::sync::OnceLock<Runs>,
+    /// Both generations hold the fixed values (after the first pre-smoothing, which
+    /// writes generation 1 whole; post-smoothing swaps the two).
+    fixed_in_both: AtomicBool,
     planes: Pool<Vec<f64>>,
     prolong: Pool<PlanePair>,
-    boxes: Pool<(Block<u8>, Block<f64>, ProlongBufs)>,
+    energy: Pool<(PlanePair, Vec<Vec<f64>>)>,
 }
 
 fn dims(spec: &GridSpec) -> [usize; 3] {
@@ -199,16 +201,90 @@ impl Rows<'_> {
     }
 }
 
-/// `sweeps` red-black sweeps (red, then black) of the whole grid, in place.
-fn sweeps(u: &mut [f64], cache: &Cache, f: Option<&[f64]>, shape: [usize; 3], n: usize) {
+/// `n` red-black sweeps (red, then black) of the whole grid, in place; with `src`, of
+/// `src` into `u` (the first half-sweep reads `src` and writes the unknowns of `u`, and
+/// the fixed voxels too unless `u` already holds them).
+fn sweeps(
+    u: &mut [f64],
+    src: Option<(&[f64], bool)>,
+    cache: &Cache,
+    f: Option<&[f64]>,
+    shape: [usize; 3],
+    n: usize,
+) {
     let runs = cache
         .runs
         .get()
         .expect("runs are built with the level's Flat");
-    for _ in 0..n {
-        half_sweep(u, runs, f, shape, 0, 1.0);
+    for k in 0..n {
+        match src {
+            Some((src, fixed)) if k == 0 => relax_from(u, src, fixed, runs, f, shape, 0, 1.0),
+            _ => half_sweep(u, runs, f, shape, 0, 1.0),
+        }
         half_sweep(u, runs, f, shape, 1, 1.0);
     }
+    if n == 0 {
+        if let Some((src, _)) = src {
+            u.par_chunks_mut(1 << 16)
+                .zip(src.par_chunks(1 << 16))
+                .for_each(|(d, s)| d.copy_from_slice(s));
+        }
+    }
+}
+
+/// `u` = `src` after a half-sweep of `color`, in one pass: the unknowns of each plane
+/// are copied and those of `color` relaxed with neighbours read from `src` (they are
+/// of the other color, which the half-sweep leaves alone, so the values are those an
+/// in-place half-sweep of the copy would read). The fixed voxels are the same in
+/// every state: with `fixed`, `u` holds them already and only the unknowns are
+/// written; otherwise whole planes are copied.
+#[allow(clippy::too_many_arguments)]
+fn relax_from(
+    u: &mut [f64],
+    src: &[f64],
+    fixed: bool,
+    runs: &Runs,
+    f: Option<&[f64]>,
+    shape: [usize; 3],
+    color: usize,
+    omega: f64,
+) {
+    let [nz, ny, nx] = shape;
+    let p = ny * nx;
+    let w = omega / 6.0;
+    u.par_chunks_mut(p).enumerate().for_each(|(z, cur)| {
+        if !fixed {
+            cur.copy_from_slice(&src[z * p..(z + 1) * p]);
+        }
+        if z == 0 || z + 1 >= nz {
+            return;
+        }
+        let (prev, here, next) = (
+            &src[(z - 1) * p..z * p],
+            &src[z * p..(z + 1) * p],
+            &src[(z + 1) * p..(z + 2) * p],
+        );
+        let fz = f.map(|f| &f[z * p..(z + 1) * p]);
+        for &(y, x0, x1) in &runs.planes[z] {
+            let (y, x0, x1) = (y as usize, x0 as usize, x1 as usize);
+            let r = y * nx..(y + 1) * nx;
+            let rows = Rows {
+                ym: &here[(y - 1) * nx..y * nx],
+                yp: &here[(y + 1) * nx..(y + 2) * nx],
+                zm: &prev[r.clone()],
+                zp: &next[r.clone()],
+            };
+            let row = &mut cur[r.clone()];
+            if fixed {
+                row[x0..x1].copy_from_slice(&here[y * nx + x0..y * nx + x1]);
+            }
+            let first = x0 + (z + y + x0 + color) % 2;
+            match fz {
+                None => rows.sweep(row, None, first, x1, w),
+                Some(fz) => rows.sweep(row, Some(&fz[r]), first, x1, w),
+            }
+        }
+    });
 }
 
 /// Over the unknowns of `u`: the largest |u - old| (with `old`), and the sum of squares
@@ -376,6 +452,45 @@ impl PlanePair {
     }
 }
 
+/// The coarse plane `zc` of `e` (planes of `[cny, cnx]`) interpolated in x and then y
+/// onto a fine plane of `[ny, nx]`, at the fine interior nodes (0 on the plane's edge),
+/// into `out`; `ex` is scratch. The arithmetic of [`super::boxops::prolong`].
+fn interpolate_xy(
+    e: &[f64],
+    [cny, cnx]: [usize; 2],
+    [ny, nx]: [usize; 2],
+    zc: usize,
+    ex: &mut Vec<f64>,
+    out: &mut Vec<f64>,
+) {
+    ex.clear();
+    ex.resize(cny * nx, 0.0);
+    for yc in 0..cny {
+        let src = &e[(zc * cny + yc) * cnx..][..cnx];
+        for x in 1..nx - 1 {
+            ex[yc * nx + x] = if x % 2 == 1 {
+                0.5 * (src[x / 2] + src[x / 2 + 1])
+            } else {
+                src[x / 2]
+            };
+        }
+    }
+    out.clear();
+    out.resize(ny * nx, 0.0);
+    for y in 1..ny - 1 {
+        let a = &ex[(y / 2) * nx..][..nx];
+        let dst = &mut out[y * nx..][..nx];
+        if y % 2 == 1 {
+            let b = &ex[(y / 2 + 1) * nx..][..nx];
+            for x in 1..nx - 1 {
+                dst[x] = 0.5 * (a[x] + b[x]);
+            }
+        } else {
+            dst[1..nx - 1].copy_from_slice(&a[1..nx - 1]);
+        }
+    }
+}
+
 /// `u += scale * P e` at the unknowns, `P` trilinear interpolation from the coarse
 /// level, axis by axis in the order of [`super::boxops::prolong`] (x, then y, then z).
 /// Parallel over slabs of fine planes; a slab interpolates each coarse plane it needs
@@ -393,34 +508,8 @@ fn prolong_add(
     let [nz, ny, nx] = fine;
     let [_, cny, cnx] = coarse;
     let p = ny * nx;
-    // The coarse plane `zc` interpolated in x and then y, at the fine interior nodes.
     let plane_xy = |zc: usize, ex: &mut Vec<f64>, out: &mut Vec<f64>| {
-        ex.clear();
-        ex.resize(cny * nx, 0.0);
-        for yc in 0..cny {
-            let src = &e[(zc * cny + yc) * cnx..][..cnx];
-            for x in 1..nx - 1 {
-                ex[yc * nx + x] = if x % 2 == 1 {
-                    0.5 * (src[x / 2] + src[x / 2 + 1])
-                } else {
-                    src[x / 2]
-                };
-            }
-        }
-        out.clear();
-        out.resize(p, 0.0);
-        for y in 1..ny - 1 {
-            let a = &ex[(y / 2) * nx..][..nx];
-            let dst = &mut out[y * nx..][..nx];
-            if y % 2 == 1 {
-                let b = &ex[(y / 2 + 1) * nx..][..nx];
-                for x in 1..nx - 1 {
-                    dst[x] = 0.5 * (a[x] + b[x]);
-                }
-            } else {
-                dst[1..nx - 1].copy_from_slice(&a[1..nx - 1]);
-            }
-        }
+        interpolate_xy(e, [cny, cnx], [ny, nx], zc, ex, out);
     };
     let per = nz.div_ceil(8 * rayon::current_num_threads()).max(1);
     u.par_chunks_mut(per * p)
@@ -497,34 +586,107 @@ impl Flat<'_> {
             .expect("Flat::of builds the runs of the level")
     }
 
-    /// `c . A c` of the interpolated correction `c = P e` of `coarse` (see
-    /// [`super::boxops::correction_energy`]), block by block in block order with the
-    /// block passes' arithmetic; buffers are kept per thread.
+    /// `c . A c` of the interpolated correction `c = P e` of `coarse`: the sum of
+    /// [`super::boxops::correction_energy`] over the blocks in block order, each summed
+    /// plane by plane, with the same arithmetic. Parallel over slabs of planes; a slab
+    /// keeps `c` (0 off the unknowns) on three planes and interpolates each coarse
+    /// plane once.
     #[must_use]
     pub fn correction_energy(&self, coarse: &Flat<'_>) -> f64 {
         let spec = self.spec;
-        let (fine_dims, coarse_dims) = (dims(spec), dims(coarse.spec));
-        let mask = self.mask.read();
+        let [nz, ny, nx] = dims(spec);
+        let p = ny * nx;
+        let [cz, cy, cx] = spec.chunk.map(|c| c as usize);
+        let (nby, nbx) = (ny.div_ceil(cy), nx.div_ceil(cx));
         let e = coarse.u[0].read();
-        let parts: Vec<f64> = spec
-            .block_indices()
-            .par_iter()
-            .with_max_len(1)
-            .map(|&b| {
-                self.cache.boxes.with(|(m, ec, pb)| {
-                    let (origin, shape, _) = box_of(spec, b, 1);
-                    m.refill(origin, shape, 0);
-                    copy_overlap(&mask, [0; 3], fine_dims, m);
-                    let (clo, cshape) = coarse_cover(origin, shape);
-                    ec.refill(clo, cshape, 0.0);
-                    copy_overlap(&e, [0; 3], coarse_dims, ec);
-                    let (lo, hi) = block_within_box(spec, b, origin);
-                    let c = prolong_into(&ec.data, clo, cshape, origin, shape, pb);
-                    correction_energy(&m.data, c, shape, lo, hi)
+        let [_, cny, cnx] = dims(coarse.spec);
+        let runs = self.runs();
+        let plane_xy = |zc: usize, ex: &mut Vec<f64>, out: &mut Vec<f64>| {
+            interpolate_xy(&e, [cny, cnx], [ny, nx], zc, ex, out);
+        };
+        let per = nz.div_ceil(8 * rayon::current_num_threads()).max(1);
+        // Per plane, the sum over each block column (by, bx) of the plane.
+        let sums: Vec<Vec<Vec<f64>>> = (0..nz.div_ceil(per))
+            .into_par_iter()
+            .map(|slab| {
+                let (z0, z1) = (slab * per, ((slab + 1) * per).min(nz));
+                self.cache.energy.with(|(pair, ring)| {
+                    pair.tag = [None; 2];
+                    ring.resize_with(3, Vec::new);
+                    // c on plane z, 0 off the unknowns (and on the grid's first and last
+                    // planes, which hold none).
+                    let masked = |z: usize, pair: &mut PlanePair, out: &mut Vec<f64>| {
+                        out.clear();
+                        out.resize(p, 0.0);
+                        if z == 0 || z + 1 >= nz || runs.planes[z].is_empty() {
+                            return;
+                        }
+                        let (zc, odd) = (z / 2, z % 2 == 1);
+                        let ka = pair.get(zc, odd.then_some(zc + 1), plane_xy);
+                        let kb = if odd {
+                            pair.get(zc + 1, Some(zc), plane_xy)
+                        } else {
+                            ka
+                        };
+                        let (a, b) = (&pair.buf[ka], &pair.buf[kb]);
+                        for &(y, x0, x1) in &runs.planes[z] {
+                            let r = y as usize * nx;
+                            for i in r + x0 as usize..r + x1 as usize {
+                                out[i] = if odd { 0.5 * (a[i] + b[i]) } else { a[i] };
+                            }
+                        }
+                    };
+                    let mut out = Vec::with_capacity(z1 - z0);
+                    let [prev, cur, next] = &mut ring[..] else {
+                        unreachable!("three planes")
+                    };
+                    if z0 > 0 {
+                        masked(z0 - 1, pair, prev);
+                    } else {
+                        prev.clear();
+                        prev.resize(p, 0.0);
+                    }
+                    masked(z0, pair, cur);
+                    for z in z0..z1 {
+                        masked(z + 1, pair, next);
+                        let (m, c, q) = (&*prev, &*cur, &*next);
+                        let mut col = vec![0.0; nby * nbx];
+                        for &(y, x0, x1) in &runs.planes[z] {
+                            let (y, r) = (y as usize, y as usize * nx);
+                            let mut x = x0 as usize;
+                            while x < x1 as usize {
+                                // The run's part in one block column.
+                                let end = (x / cx + 1) * cx;
+                                let sum = &mut col[(y / cy) * nbx + x / cx];
+                                for i in r + x..r + end.min(x1 as usize) {
+                                    let nb =
+                                        c[i - 1] + c[i + 1] + c[i - nx] + c[i + nx] + m[i] + q[i];
+                                    *sum += energy_term(c[i], nb);
+                                }
+                                x = end;
+                            }
+                        }
+                        out.push(col);
+                        // Planes z, z + 1 become the previous and current ones.
+                        std::mem::swap(prev, cur);
+                        std::mem::swap(cur, next);
+                    }
+                    out
                 })
             })
             .collect();
-        parts.into_iter().sum()
+        let sums: Vec<Vec<f64>> = sums.into_iter().flatten().collect();
+        spec.block_indices()
+            .iter()
+            .map(|&[bz, by, bx]| {
+                let (bz, col) = (bz as usize, by as usize * nbx + bx as usize);
+                let mut den = 0.0;
+                for plane in &sums[bz * cz..((bz + 1) * cz).min(nz)] {
+                    den += plane[col];
+                }
+                den
+            })
+            .sum()
     }
 
     /// Pre-smoothing: generation 1 = generation 0 after `n` sweeps; with `measure`, the
@@ -542,11 +704,10 @@ impl Flat<'_> {
             (0.0, 0)
         };
         let mut u1 = self.u[1].write();
-        u1.par_chunks_mut(1 << 16)
-            .zip(u0.par_chunks(1 << 16))
-            .for_each(|(d, s)| d.copy_from_slice(s));
+        // Generation 1 holds the fixed values once it has been written whole.
+        let fixed = self.cache.fixed_in_both.swap(true, Ordering::Relaxed);
+        sweeps(&mut u1, Some((&u0, fixed)), self.cache, f, shape, n);
         drop(u0);
-        sweeps(&mut u1, self.cache, f, shape, n);
         let cmask = coarse.mask.read();
         let mut cf = coarse
             .f
@@ -594,7 +755,7 @@ impl Flat<'_> {
                 &self.cache.prolong,
             );
         }
-        sweeps(&mut u1, self.cache, f, shape, n);
+        sweeps(&mut u1, None, self.cache, f, shape, n);
         let mut u0 = self.u[0].write();
         // The result becomes generation 0; generation 1 keeps the old state, which the
         // next pre-smoothing overwrites.
