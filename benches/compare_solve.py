@@ -3,10 +3,14 @@
 
     python3 -m venv /tmp/cmpvenv
     /tmp/cmpvenv/bin/pip install numpy scipy pyamg 'zarr>=3'      # a C compiler: cc
-    /tmp/cmpvenv/bin/python benches/compare_solve.py RUN [--rtol 1e-6] [--eps 1e-4] [--json out.json]
+    /tmp/cmpvenv/bin/python benches/compare_solve.py RUN [--harmap target/release/harmap]
+        [--repeat 3] [--rtol 1e-6] [--eps 1e-4] [--json out.json]
 
 RUN is a harmap run directory (Zarr v3 group) with RUN/labels/0, e.g. from
-`harmap voxelize ... -o RUN`. If RUN/phi/0 exists (harmap's solve), it is compared too.
+`harmap voxelize ... -o RUN`. With --harmap BIN, `BIN solve RUN` runs --repeat times,
+interleaved with the peers, and its time is the solve stage's own (labels read to phi and
+u stored, as RUN/zarr.json records it). Without it, a RUN/phi/0 already there is compared
+with the time its run recorded.
 
 The discrete system (harmap's, src/solve):
   * labels: 0 exterior (not part of the problem), 1 boundary (phi = 1), 2 interior
@@ -339,7 +343,41 @@ def run_peers(a, labels_path: Path, shape, tmp: Path, report: dict) -> dict[str,
                 "iterations": r["iterations"], "peak_rss": r["peak_rss"], "rel_residual": r["rel_residual"],
                 "converged": r["converged"], "residual_check_s": r["residual_check_s"],
                 "process_wall_s": wall, "file": "phi_sor.f64"})
+        if a.harmap:
+            print(f"harmap: {a.harmap} solve{tag} ...", flush=True)
+            runs.setdefault("harmap", []).append(run_harmap(a, env, tmp))
     return runs
+
+
+def run_harmap(a, env, tmp: Path) -> dict:
+    """`harmap solve RUN` once (it replaces RUN's phi): its stage time, iterations and
+    peak RSS. The peak is the child's VmHWM, read from /proc every 10 ms while it runs
+    (a high-water mark, so the last reading is the peak up to a few ms before the end;
+    where /proc is missing, none)."""
+    cmd = [a.harmap, "-q", "--threads", str(a.threads), "solve", a.run, "--rtol", repr(a.rtol),
+           "--eps", repr(a.eps)]
+    t0 = time.perf_counter()
+    peak = None
+    with open(tmp / "harmap.log", "w") as log:
+        proc = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
+        status = Path(f"/proc/{proc.pid}/status")
+        while proc.poll() is None:
+            try:
+                for line in status.read_text().splitlines():
+                    if line.startswith("VmHWM:"):
+                        peak = max(peak or 0, int(line.split()[1]) * 1024)
+            except OSError:
+                pass
+            time.sleep(0.01)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        sys.exit(f"error: {' '.join(cmd)} failed ({proc.returncode}):\n{(tmp / 'harmap.log').read_text()}")
+    stage = json.loads((Path(a.run) / "zarr.json").read_text())["attributes"]["harmap"]["stages"]["solve"]
+    result = stage.get("result") or {}
+    return {"setup_s": None, "solve_s": stage["seconds"], "total_s": stage["seconds"],
+            "iterations": result.get("iterations"), "peak_rss": peak,
+            "rel_residual": result.get("relative_residual"), "method": result.get("method"),
+            "process_wall_s": wall}
 
 
 def main() -> int:
@@ -363,6 +401,8 @@ def main() -> int:
                     help="run every peer this many times, interleaved, and report the run of median total time "
                          "(default 1)")
     ap.add_argument("--cc", default=os.environ.get("CC", "cc"), help="C compiler (default $CC or cc)")
+    ap.add_argument("--harmap", metavar="BIN",
+                    help="run `BIN solve RUN` too, --repeat times interleaved with the peers (replaces RUN's phi)")
     ap.add_argument("--keep", metavar="DIR", help="keep the scratch files (labels, phi of each peer) in DIR")
     # The pyamg child process.
     ap.add_argument("--worker-pyamg", action="store_true", help=argparse.SUPPRESS)
@@ -402,7 +442,7 @@ def main() -> int:
     phis: dict[str, np.ndarray] = {}
     phis_ref = None
     report = {"run": str(run), "shape": list(shape), "unknowns": n, "rtol": a.rtol, "eps": a.eps,
-              "threads": a.threads, "repeat": a.repeat, "residual0": r0,
+              "threads": a.threads, "repeat": a.repeat, "residual0": r0, "harmap_bin": a.harmap,
               "machine": {"cpu": cpu_name(), "cores": os.cpu_count(), "python": platform.python_version()},
               "peers": peers}
     try:
@@ -415,7 +455,8 @@ def main() -> int:
             med = sorted(rs, key=lambda r: r["total_s"])[(len(rs) - 1) // 2]
             peers[key] = med | {"total_s_runs": [r["total_s"] for r in rs]}
         for key, peer in peers.items():
-            phis[key] = np.fromfile(tmp / peer.pop("file"), dtype=np.float64)[p]
+            if "file" in peer:
+                phis[key] = np.fromfile(tmp / peer.pop("file"), dtype=np.float64)[p]
         if report.get("pyamg", {}).get("reference"):
             phis_ref = np.fromfile(tmp / "phi_reference.f64", dtype=np.float64)[p]
     finally:
@@ -433,9 +474,10 @@ def main() -> int:
             .get("stages", {}).get("solve", {})
         result = stage.get("result") or {}
         rel = result.get("relative_residual", (result.get("residual_history") or [None])[-1])
-        peers["harmap"] = {"setup_s": None, "solve_s": stage.get("seconds"), "total_s": stage.get("seconds"),
-                           "iterations": result.get("iterations"), "peak_rss": None, "rel_residual": rel,
-                           "method": result.get("method")}
+        if "harmap" not in peers:
+            peers["harmap"] = {"setup_s": None, "solve_s": stage.get("seconds"), "total_s": stage.get("seconds"),
+                               "iterations": result.get("iterations"), "peak_rss": None, "rel_residual": rel,
+                               "method": result.get("method")}
         report["harmap_solve_stage"] = stage
     else:
         print(f"harmap: no {harmap_phi} (harmap's solve has not run on this run directory)")
@@ -494,8 +536,18 @@ def print_table(peers: dict, report: dict) -> None:
               f"process wall {r['process_wall_s']:.2f} s.")
     if "harmap" in peers:
         h = peers["harmap"]
-        print(f"harmap: RUN/phi/0; time, iterations and rel.res from RUN/zarr.json (stages.solve, method "
-              f"{h.get('method')}), as that run recorded them on whatever machine and load it had.")
+        if h.get("total_s_runs"):
+            print(f"harmap: `{report['harmap_bin']} solve RUN` (method {h.get('method')}), run here; time: the solve "
+                  f"stage's own (labels read to phi and u stored), process wall {h['process_wall_s']:.2f} s; peak: "
+                  f"its VmHWM.")
+        else:
+            print(f"harmap: RUN/phi/0; time, iterations and rel.res from RUN/zarr.json (stages.solve, method "
+                  f"{h.get('method')}), as that run recorded them on whatever machine and load it had.")
+    if peers.get("harmap", {}).get("total_s"):
+        t = peers["harmap"]["total_s"]
+        ratios = [f"{k} {r['total_s'] / t:.1f}x" for k, r in peers.items() if k != "harmap" and r.get("total_s")]
+        if ratios:
+            print("harmap faster than (total / harmap's total): " + ", ".join(ratios))
     if report.get("repeat", 1) > 1:
         print(f"Times: the run of median total of {report['repeat']}, interleaved; all totals (s):")
         for key, r in peers.items():
