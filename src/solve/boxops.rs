@@ -122,22 +122,25 @@ impl BoxView<'_> {
     }
 
     /// Sum of squares and count of the residual `r = defect / 6` over the local sub-box
-    /// `[lo, hi)`.
+    /// `[lo, hi)`, summed plane by plane (z), each plane in y, x order.
     #[must_use]
     pub fn residual_sq(&self, lo: [usize; 3], hi: [usize; 3]) -> (f64, u64) {
         let [_, ny, nx] = self.shape;
         let (mut s, mut n) = (0.0, 0u64);
         for z in lo[0]..hi[0] {
+            // Summed plane by plane (the whole-array pass sums the same way).
+            let mut plane = 0.0;
             for y in lo[1]..hi[1] {
                 let row = (z * ny + y) * nx;
                 for x in lo[2]..hi[2] {
                     if self.mask[row + x] == INTERIOR {
                         let r = self.defect(row + x) / 6.0;
-                        s += r * r;
+                        plane += r * r;
                         n += 1;
                     }
                 }
             }
+            s += plane;
         }
         (s, n)
     }

@@ -57,22 +57,62 @@ impl Runs {
             .collect();
         Self { planes }
     }
+}
 
-    /// The runs of plane `z` in rows `y0..y1`, clipped to the columns `x0..x1` (empty
-    /// ones dropped), in row order.
-    fn clipped(
-        &self,
-        z: usize,
-        [y0, y1]: [usize; 2],
-        [x0, x1]: [usize; 2],
-    ) -> impl Iterator<Item = (usize, usize, usize)> + '_ {
-        let plane = &self.planes[z];
-        let from = plane.partition_point(|r| (r.0 as usize) < y0);
-        plane[from..]
+/// The block columns `(by, bx)` of a grid. The block passes sum per block, plane by
+/// plane; a whole-array pass gives the same sums by keeping one sum per plane and
+/// column and adding them up per block at the end.
+struct Columns {
+    chunk: [usize; 3],
+    nz: usize,
+    nbx: usize,
+    count: usize,
+}
+
+impl Columns {
+    fn of(spec: &GridSpec) -> Self {
+        let [nz, ny, nx] = dims(spec);
+        let chunk = spec.chunk.map(|c| c as usize);
+        let nbx = nx.div_ceil(chunk[2]);
+        Self {
+            chunk,
+            nz,
+            nbx,
+            count: ny.div_ceil(chunk[1]) * nbx,
+        }
+    }
+
+    /// The parts of the run `x0..x1` of row `y` in each block column:
+    /// `(column, x0, x1)`, in x order.
+    fn split(&self, y: usize, x0: usize, x1: usize) -> impl Iterator<Item = (usize, usize, usize)> {
+        let [_, cy, cx] = self.chunk;
+        let row = (y / cy) * self.nbx;
+        let mut x = x0;
+        std::iter::from_fn(move || {
+            (x < x1).then(|| {
+                let end = ((x / cx + 1) * cx).min(x1);
+                let part = (row + x / cx, x, end);
+                x = end;
+                part
+            })
+        })
+    }
+
+    /// The sum over the blocks, in block order, of each block's plane sums in z order;
+    /// `planes[z][column]`.
+    fn total(&self, spec: &GridSpec, planes: &[Vec<f64>]) -> f64 {
+        let cz = self.chunk[0];
+        spec.block_indices()
             .iter()
-            .take_while(move |r| (r.0 as usize) < y1)
-            .map(move |&(y, a, b)| (y as usize, (a as usize).max(x0), (b as usize).min(x1)))
-            .filter(|r| r.1 < r.2)
+            .map(|&[bz, by, bx]| {
+                let (bz, col) = (bz as usize, by as usize * self.nbx + bx as usize);
+                let mut s = 0.0;
+                for plane in &planes[bz * cz..((bz + 1) * cz).min(self.nz)] {
+                    s += plane[col];
+                }
+                s
+            })
+            .sum()
     }
 }
 
@@ -288,8 +328,9 @@ fn relax_from(
 }
 
 /// Over the unknowns of `u`: the largest |u - old| (with `old`), and the sum of squares
-/// and count of the residual `defect / 6` (with `measure`), summed block by block (each
-/// in z, y, x order) and the blocks in block order, as the block passes sum them.
+/// and count of the residual `defect / 6` (with `measure`), summed as the block passes
+/// sum them: per block, plane by plane, each plane in y, x order; the blocks in block
+/// order. Parallel over slabs of planes, which keep one sum per block column and plane.
 fn block_stats(
     spec: &GridSpec,
     u: &[f64],
@@ -301,37 +342,52 @@ fn block_stats(
     if old.is_none() && !measure {
         return (0.0, 0.0, 0);
     }
-    let [_, ny, nx] = dims(spec);
+    let [nz, ny, nx] = dims(spec);
     let (sy, sz) = (nx, nx * ny);
-    let parts: Vec<(f64, f64, u64)> = spec
-        .block_indices()
-        .par_iter()
-        .with_max_len(1)
-        .map(|&b| {
-            let s = spec.block_start(b).map(|c| c as usize);
-            let e = [0, 1, 2].map(|a| s[a] + spec.block_shape(b)[a] as usize);
-            let (mut max, mut sum, mut n) = (0.0f64, 0.0, 0u64);
-            for z in s[0]..e[0] {
-                for (y, x0, x1) in runs.clipped(z, [s[1], e[1]], [s[2], e[2]]) {
-                    let row = (z * ny + y) * nx;
-                    for i in row + x0..row + x1 {
-                        if let Some(old) = old {
+    let cols = Columns::of(spec);
+    let per = nz.div_ceil(8 * rayon::current_num_threads()).max(1);
+    let slabs: Vec<(f64, u64, Vec<Vec<f64>>)> = (0..nz.div_ceil(per))
+        .into_par_iter()
+        .map(|slab| {
+            let (mut max, mut n) = (0.0f64, 0u64);
+            let mut planes = Vec::with_capacity(per);
+            for z in slab * per..((slab + 1) * per).min(nz) {
+                let mut col = vec![0.0; if measure { cols.count } else { 0 }];
+                for &(y, x0, x1) in &runs.planes[z] {
+                    let (y, row) = (y as usize, (z * ny + y as usize) * nx);
+                    if let Some(old) = old {
+                        for i in row + x0 as usize..row + x1 as usize {
                             max = max.max((u[i] - old[i]).abs());
                         }
-                        if measure {
+                    }
+                    if !measure {
+                        continue;
+                    }
+                    for (c, a, b) in cols.split(y, x0 as usize, x1 as usize) {
+                        for i in row + a..row + b {
                             let r = defect_at(u, f, i, sy, sz) / 6.0;
-                            sum += r * r;
-                            n += 1;
+                            col[c] += r * r;
                         }
+                        n += (b - a) as u64;
                     }
                 }
+                planes.push(col);
             }
-            (max, sum, n)
+            (max, n, planes)
         })
         .collect();
-    parts.into_iter().fold((0.0f64, 0.0, 0), |a, p| {
-        (a.0.max(p.0), a.1 + p.1, a.2 + p.2)
-    })
+    let (mut max, mut n) = (0.0f64, 0u64);
+    let mut planes = Vec::with_capacity(nz);
+    for (m, c, p) in slabs {
+        max = max.max(m);
+        n += c;
+        planes.extend(p);
+    }
+    if !measure {
+        return (max, 0.0, 0);
+    }
+    let sum = cols.total(spec, &planes);
+    (max, sum, n)
 }
 
 /// The defect plane `z` (0 off the unknowns, and off the grid).
@@ -596,8 +652,7 @@ impl Flat<'_> {
         let spec = self.spec;
         let [nz, ny, nx] = dims(spec);
         let p = ny * nx;
-        let [cz, cy, cx] = spec.chunk.map(|c| c as usize);
-        let (nby, nbx) = (ny.div_ceil(cy), nx.div_ceil(cx));
+        let cols = Columns::of(spec);
         let e = coarse.u[0].read();
         let [_, cny, cnx] = dims(coarse.spec);
         let runs = self.runs();
@@ -650,20 +705,15 @@ impl Flat<'_> {
                     for z in z0..z1 {
                         masked(z + 1, pair, next);
                         let (m, c, q) = (&*prev, &*cur, &*next);
-                        let mut col = vec![0.0; nby * nbx];
+                        let mut col = vec![0.0; cols.count];
                         for &(y, x0, x1) in &runs.planes[z] {
                             let (y, r) = (y as usize, y as usize * nx);
-                            let mut x = x0 as usize;
-                            while x < x1 as usize {
-                                // The run's part in one block column.
-                                let end = (x / cx + 1) * cx;
-                                let sum = &mut col[(y / cy) * nbx + x / cx];
-                                for i in r + x..r + end.min(x1 as usize) {
+                            for (k, a, b) in cols.split(y, x0 as usize, x1 as usize) {
+                                for i in r + a..r + b {
                                     let nb =
                                         c[i - 1] + c[i + 1] + c[i - nx] + c[i + nx] + m[i] + q[i];
-                                    *sum += energy_term(c[i], nb);
+                                    col[k] += energy_term(c[i], nb);
                                 }
-                                x = end;
                             }
                         }
                         out.push(col);
@@ -676,17 +726,7 @@ impl Flat<'_> {
             })
             .collect();
         let sums: Vec<Vec<f64>> = sums.into_iter().flatten().collect();
-        spec.block_indices()
-            .iter()
-            .map(|&[bz, by, bx]| {
-                let (bz, col) = (bz as usize, by as usize * nbx + bx as usize);
-                let mut den = 0.0;
-                for plane in &sums[bz * cz..((bz + 1) * cz).min(nz)] {
-                    den += plane[col];
-                }
-                den
-            })
-            .sum()
+        cols.total(spec, &sums)
     }
 
     /// Pre-smoothing: generation 1 = generation 0 after `n` sweeps; with `measure`, the
@@ -766,5 +806,43 @@ impl Flat<'_> {
         let (max, sum, n) = block_stats(self.spec, &u0, old, self.runs(), f, measure);
         let st = (sum, n);
         (max, st)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn columns_split_runs_at_block_edges_and_total_sums_per_block_in_block_order() {
+        let spec = GridSpec {
+            shape: [4, 10, 10],
+            origin: [0.0; 3],
+            spacing: 1.0,
+            chunk: [2, 4, 4],
+            unit: None,
+        };
+        let cols = Columns::of(&spec);
+        assert_eq!(cols.count, 9);
+        // Row 5 is in block row 1; x 2..10 crosses columns 0, 1 and 2 of it.
+        let parts: Vec<_> = cols.split(5, 2, 10).collect();
+        assert_eq!(parts, vec![(3, 2, 4), (4, 4, 8), (5, 8, 10)]);
+        assert_eq!(cols.split(5, 4, 4).count(), 0);
+        // Plane z, column c holds 10^z * (c + 1): block (bz, by, bx) sums the planes
+        // 2 bz and 2 bz + 1 of its column.
+        let planes: Vec<Vec<f64>> = (0..4)
+            .map(|z| (0..9).map(|c| 10f64.powi(z) * f64::from(c + 1)).collect())
+            .collect();
+        let want: f64 = spec
+            .block_indices()
+            .iter()
+            .map(|&[bz, by, bx]| {
+                let c = (by * 3 + bx + 1) as f64;
+                let z = 2 * bz as i32;
+                10f64.powi(z) * c + 10f64.powi(z + 1) * c
+            })
+            .sum();
+        // Integers below 2^53: exact in any order.
+        assert!((cols.total(&spec, &planes) - want).abs() < 0.5);
     }
 }
