@@ -10,6 +10,7 @@
 //! - conformal distortion: per triangle, the ratio of the singular values of the linear
 //!   map from the surface triangle to its sphere triangle; 1 where angles are kept.
 
+use rayon::prelude::*;
 use std::collections::HashMap;
 
 use glam::{DVec2, DVec3};
@@ -174,31 +175,32 @@ pub fn collisions(
             grid.entry(cell(*s)).or_default().push(i);
         }
     }
-    let mut count = 0u64;
-    for (i, s) in sphere.iter().enumerate() {
-        let Some(s) = s else { continue };
-        let c = cell(*s);
-        let mut hit = false;
-        'outer: for dz in -1..=1 {
-            for dy in -1..=1 {
-                for dx in -1..=1 {
-                    let Some(v) = grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
-                        continue;
-                    };
-                    for &j in v {
-                        if j != i
-                            && (sphere[j].expect("in the grid") - *s).length() <= chord
-                            && (positions[j] - positions[i]).length() > far
-                        {
-                            hit = true;
-                            break 'outer;
+    let count = sphere
+        .par_iter()
+        .enumerate()
+        .filter(|&(i, s)| {
+            let Some(s) = s else { return false };
+            let c = cell(*s);
+            for dz in -1..=1 {
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        let Some(v) = grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
+                            continue;
+                        };
+                        for &j in v {
+                            if j != i
+                                && (sphere[j].expect("in the grid") - *s).length() <= chord
+                                && (positions[j] - positions[i]).length() > far
+                            {
+                                return true;
+                            }
                         }
                     }
                 }
             }
-        }
-        count += u64::from(hit);
-    }
+            false
+        })
+        .count() as u64;
     Collisions {
         angle_deg,
         far_voxels: far,

@@ -483,7 +483,10 @@ pub fn trace_seeds(
     })
 }
 
-/// phi at each seed (voxel coordinates) from the trilinear u, reading each chunk once.
+/// phi at each seed (voxel coordinates) from the trilinear u. Seeds are grouped by the
+/// block of their cell, and the blocks done in parallel; a block is read alone unless
+/// one of its seeds weighs a node of the next block (a seed off the nodes in the block's
+/// last layer), when the block is read with one more layer.
 fn seed_phi(phi: &dyn BlockStore<f64>, pts: &[DVec3]) -> Result<Vec<f64>, GridError> {
     let spec = phi.spec();
     let mut by_block: BTreeMap<u64, Vec<usize>> = BTreeMap::new();
@@ -493,15 +496,36 @@ fn seed_phi(phi: &dyn BlockStore<f64>, pts: &[DVec3]) -> Result<Vec<f64>, GridEr
             std::array::from_fn(|a| (v[a].max(0.0) as u64).min(spec.shape[a] - 1) / spec.chunk[a]);
         by_block.entry(spec.block_linear(b)).or_default().push(i);
     }
-    let mut out = vec![f64::NAN; pts.len()];
     let nb = spec.blocks();
-    for (k, idx) in by_block {
+    let groups: Vec<(u64, Vec<usize>)> = by_block.into_iter().collect();
+    let workers = rayon::current_num_threads();
+    let values = crate::parallel::map_bounded(&groups, workers, |(k, idx)| {
         let b = [k / (nb[1] * nb[2]), (k / nb[2]) % nb[1], k % nb[2]];
-        let st = spec.block_start(b);
-        let sh = spec.block_shape(b);
-        let region = phi.read_region(st.map(|c| c as i64), sh.map(|c| c as usize + 1), f64::NAN)?;
-        for i in idx {
-            out[i] = 1.0 - trilinear(&region, pts[i]);
+        let st = spec.block_start(b).map(|c| c as i64);
+        let sh = spec.block_shape(b).map(|c| c as usize);
+        let reaches_next = idx.iter().any(|&i| {
+            let q = [pts[i].z, pts[i].y, pts[i].x];
+            (0..3).any(|a| q[a].floor() as i64 + 1 >= st[a] + sh[a] as i64 && q[a] > q[a].floor())
+        });
+        let region = if reaches_next {
+            phi.read_region(st, sh.map(|c| c + 1), f64::NAN)?
+        } else {
+            crate::grid::Block {
+                origin: st,
+                shape: sh,
+                data: phi.read_block(b)?,
+            }
+        };
+        Ok::<_, GridError>(
+            idx.iter()
+                .map(|&i| 1.0 - trilinear(&region, pts[i]))
+                .collect::<Vec<f64>>(),
+        )
+    })?;
+    let mut out = vec![f64::NAN; pts.len()];
+    for ((_, idx), v) in groups.iter().zip(values) {
+        for (&i, v) in idx.iter().zip(v) {
+            out[i] = v;
         }
     }
     Ok(out)
