@@ -355,7 +355,7 @@ def run_harmap(a, env, tmp: Path) -> dict:
     (a high-water mark, so the last reading is the peak up to a few ms before the end;
     where /proc is missing, none)."""
     cmd = [a.harmap, "-q", "--threads", str(a.threads), "solve", a.run, "--rtol", repr(a.rtol),
-           "--eps", repr(a.eps)]
+           "--eps", repr(a.eps), "--mem", a.harmap_mem]
     t0 = time.perf_counter()
     peak = None
     with open(tmp / "harmap.log", "w") as log:
@@ -377,7 +377,7 @@ def run_harmap(a, env, tmp: Path) -> dict:
     return {"setup_s": None, "solve_s": stage["seconds"], "total_s": stage["seconds"],
             "iterations": result.get("iterations"), "peak_rss": peak,
             "rel_residual": result.get("relative_residual"), "method": result.get("method"),
-            "process_wall_s": wall}
+            "in_memory": result.get("in_memory"), "process_wall_s": wall}
 
 
 def main() -> int:
@@ -403,6 +403,9 @@ def main() -> int:
     ap.add_argument("--cc", default=os.environ.get("CC", "cc"), help="C compiler (default $CC or cc)")
     ap.add_argument("--harmap", metavar="BIN",
                     help="run `BIN solve RUN` too, --repeat times interleaved with the peers (replaces RUN's phi)")
+    ap.add_argument("--harmap-mem", default="1GiB", metavar="SIZE",
+                    help="harmap's --mem (default 1GiB, its own default: at N = 256 every level fits; the peers "
+                         "have no limit)")
     ap.add_argument("--keep", metavar="DIR", help="keep the scratch files (labels, phi of each peer) in DIR")
     # The pyamg child process.
     ap.add_argument("--worker-pyamg", action="store_true", help=argparse.SUPPRESS)
@@ -443,6 +446,7 @@ def main() -> int:
     phis_ref = None
     report = {"run": str(run), "shape": list(shape), "unknowns": n, "rtol": a.rtol, "eps": a.eps,
               "threads": a.threads, "repeat": a.repeat, "residual0": r0, "harmap_bin": a.harmap,
+              "harmap_mem": a.harmap_mem,
               "machine": {"cpu": cpu_name(), "cores": os.cpu_count(), "python": platform.python_version()},
               "peers": peers}
     try:
@@ -537,13 +541,13 @@ def print_table(peers: dict, report: dict) -> None:
     if "harmap" in peers:
         h = peers["harmap"]
         if h.get("total_s_runs"):
-            print(f"harmap: `{report['harmap_bin']} solve RUN` (method {h.get('method')}), run here; time: the solve "
-                  f"stage's own (labels read to phi and u stored), process wall {h['process_wall_s']:.2f} s; peak: "
-                  f"its VmHWM.")
+            print(f"harmap: `{report['harmap_bin']} solve RUN --mem {report['harmap_mem']}` (method "
+                  f"{h.get('method')}; levels in memory {h.get('in_memory')}), run here; time: the solve stage's own "
+                  f"(labels read to phi and u stored), process wall {h['process_wall_s']:.2f} s; peak: its VmHWM.")
         else:
             print(f"harmap: RUN/phi/0; time, iterations and rel.res from RUN/zarr.json (stages.solve, method "
                   f"{h.get('method')}), as that run recorded them on whatever machine and load it had.")
-    if peers.get("harmap", {}).get("total_s"):
+    if peers.get("harmap", {}).get("total_s_runs"):  # harmap ran here, with the peers
         t = peers["harmap"]["total_s"]
         ratios = [f"{k} {r['total_s'] / t:.1f}x" for k, r in peers.items() if k != "harmap" and r.get("total_s")]
         if ratios:

@@ -14,17 +14,6 @@ pub struct Block<T> {
     pub data: Vec<T>,
 }
 
-/// An empty box at the origin (to be [`Block::refill`]ed).
-impl<T> Default for Block<T> {
-    fn default() -> Self {
-        Self {
-            origin: [0; 3],
-            shape: [0; 3],
-            data: Vec::new(),
-        }
-    }
-}
-
 impl<T: Copy> Block<T> {
     /// A box of `shape` at `origin` filled with `value`.
     #[must_use]
@@ -34,15 +23,6 @@ impl<T: Copy> Block<T> {
             shape,
             data: vec![value; shape[0] * shape[1] * shape[2]],
         }
-    }
-
-    /// Make this the box of `shape` at `origin` filled with `value`, reusing the
-    /// allocation (passes that visit many boxes keep one per thread).
-    pub fn refill(&mut self, origin: [i64; 3], shape: [usize; 3], value: T) {
-        self.origin = origin;
-        self.shape = shape;
-        self.data.clear();
-        self.data.resize(shape[0] * shape[1] * shape[2], value);
     }
 
     /// Offset of local `(z, y, x)`.

@@ -265,15 +265,6 @@ fn interp(v: &[f64], t: (usize, bool)) -> f64 {
     }
 }
 
-/// The buffers of [`prolong_into`], kept between calls so that a pass over many boxes
-/// allocates them once per thread.
-#[derive(Default)]
-pub struct ProlongBufs {
-    ex: Vec<f64>,
-    exy: Vec<f64>,
-    out: Vec<f64>,
-}
-
 /// The trilinear interpolant of the coarse correction `e` (box at `e_origin`, extent
 /// `e_shape`, covering every coarse node the fine box needs, one past its last odd
 /// node) at every voxel of the fine box at `origin` with extent `shape`, computed one
@@ -286,37 +277,20 @@ pub fn prolong(
     origin: [i64; 3],
     shape: [usize; 3],
 ) -> Vec<f64> {
-    let mut bufs = ProlongBufs::default();
-    prolong_into(e, e_origin, e_shape, origin, shape, &mut bufs);
-    bufs.out
-}
-
-/// [`prolong`] into `bufs` (whose earlier content it replaces); returns the result.
-pub fn prolong_into<'a>(
-    e: &[f64],
-    e_origin: [i64; 3],
-    e_shape: [usize; 3],
-    origin: [i64; 3],
-    shape: [usize; 3],
-    bufs: &'a mut ProlongBufs,
-) -> &'a [f64] {
     let tz = axis_table(origin[0], shape[0], e_origin[0]);
     let ty = axis_table(origin[1], shape[1], e_origin[1]);
     let tx = axis_table(origin[2], shape[2], e_origin[2]);
     let [cz, cy, cx] = e_shape;
-    let [_, ny, nx] = shape;
-    let ProlongBufs { ex, exy, out } = bufs;
+    let [nz, ny, nx] = shape;
     // x: coarse (z, y) rows to fine x.
     // (Each array is built by appending, so nothing is zeroed first.)
-    ex.clear();
-    ex.reserve(cz * cy * nx);
+    let mut ex = Vec::with_capacity(cz * cy * nx);
     for r in 0..cz * cy {
         let src = &e[r * cx..(r + 1) * cx];
         ex.extend(tx.iter().map(|&t| interp(src, t)));
     }
     // y: coarse z planes to fine y.
-    exy.clear();
-    exy.reserve(cz * ny * nx);
+    let mut exy = Vec::with_capacity(cz * ny * nx);
     for z in 0..cz {
         let plane = &ex[z * cy * nx..(z + 1) * cy * nx];
         for &t in &ty {
@@ -331,8 +305,7 @@ pub fn prolong_into<'a>(
     }
     // z: to fine planes.
     let pn = ny * nx;
-    out.clear();
-    out.reserve(shape[0] * pn);
+    let mut out = Vec::with_capacity(nz * pn);
     for &t in &tz {
         let a = &exy[t.0 * pn..][..pn];
         if t.1 {

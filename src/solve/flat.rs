@@ -3,14 +3,17 @@
 //! arrays, with no box copies and no halo recomputation.
 //!
 //! Every value is computed with the same arithmetic in the same order as in the block
-//! passes (red-black sweeps do not depend on the order within a color; the residual is
-//! summed block by block in block order; restriction and prolongation are per node), so
+//! passes (red-black sweeps do not depend on the order within a color; the residual and
+//! c.Ac are summed per block, plane by plane, blocks in block order; restriction and
+//! prolongation are per node), so
 //! a level in memory and a level in scratch files give the same bytes. The tests that
 //! compare budgets check it.
 //!
 //! A half-sweep is parallel over slabs of z planes: a node of one color reads only
-//! nodes of the other color, which the half-sweep does not change, so each slab takes
-//! copies of the two planes next to it and updates its own planes alone.
+//! nodes of the other color, which the half-sweep does not change. The even slabs go
+//! first, then the odd ones, so a slab borrows the planes next to it from slabs that
+//! are not being written. The other passes run over slabs of whole planes too, with
+//! buffers lent per task from pools that live with the level.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -117,16 +120,39 @@ impl Columns {
 }
 
 /// What the whole-array passes of a level keep between passes: the runs of its
-/// unknowns (built on first use) and buffers lent to the passes' tasks.
+/// unknowns (built on first use), whether both generations hold the fixed values, and
+/// buffers lent to the passes' tasks (at most [`PASS_PLANES`] planes per thread in all;
+/// the memory plan counts them, see [`pass_bytes`]).
 #[derive(Default)]
 pub struct Cache {
     runs: std::sync::OnceLock<Runs>,
-    /// Both generations hold the fixed values (after the first pre-smoothing, which
-    /// writes generation 1 whole; post-smoothing swaps the two).
-    fixed_in_both: AtomicBool,
     planes: Pool<Vec<f64>>,
     prolong: Pool<PlanePair>,
     energy: Pool<(PlanePair, Vec<Vec<f64>>)>,
+    /// Both generations hold the fixed values: set by the first pre-smoothing, which
+    /// writes generation 1 whole (post-smoothing swaps the two); cleared by
+    /// [`Cache::state_replaced`].
+    fixed_in_both: AtomicBool,
+}
+
+/// Planes of f64 a thread's buffers hold in the pools of one level: restriction 3,
+/// prolongation 2.5, c.Ac 5.5 (each rounded up in the sum).
+pub const PASS_PLANES: u64 = 12;
+
+/// Bytes the whole-array passes of a level of `spec` keep with `threads` threads: the
+/// pools' planes, and the runs of unknowns (counted at two runs per row).
+#[must_use]
+pub fn pass_bytes(spec: &GridSpec, threads: usize) -> u64 {
+    let [nz, ny, nx] = spec.shape;
+    threads as u64 * PASS_PLANES * ny * nx * 8 + 2 * nz * ny * 12
+}
+
+impl Cache {
+    /// Generation 0 was written whole from outside the passes (initialized, or read
+    /// from a checkpoint): the next pre-smoothing writes generation 1 whole again.
+    pub fn state_replaced(&self) {
+        self.fixed_in_both.store(false, Ordering::Relaxed);
+    }
 }
 
 fn dims(spec: &GridSpec) -> [usize; 3] {

@@ -215,7 +215,7 @@ fn restrict_block(view: &BoxView<'_>, c: &Level, b: Idx3) -> Result<(), GridErro
 }
 
 /// The coarse nodes under a fine box, one more on each side.
-pub(super) fn coarse_cover(origin: [i64; 3], shape: [usize; 3]) -> ([i64; 3], [usize; 3]) {
+fn coarse_cover(origin: [i64; 3], shape: [usize; 3]) -> ([i64; 3], [usize; 3]) {
     let clo = origin.map(|v| v.div_euclid(2));
     let chi = [0, 1, 2].map(|a| (origin[a] + shape[a] as i64 - 1).div_euclid(2) + 2);
     (clo, [0, 1, 2].map(|a| (chi[a] - clo[a]) as usize))
@@ -223,11 +223,7 @@ pub(super) fn coarse_cover(origin: [i64; 3], shape: [usize; 3]) -> ([i64; 3], [u
 
 /// Block `b` in the local coordinates of a box of it whose first voxel is `origin`:
 /// `[lo, hi)`.
-pub(super) fn block_within_box(
-    spec: &GridSpec,
-    b: Idx3,
-    origin: [i64; 3],
-) -> ([usize; 3], [usize; 3]) {
+fn block_within_box(spec: &GridSpec, b: Idx3, origin: [i64; 3]) -> ([usize; 3], [usize; 3]) {
     let bs = spec.block_start(b);
     let lo = [0, 1, 2].map(|a| (bs[a] as i64 - origin[a]) as usize);
     let hi = [0, 1, 2].map(|a| lo[a] + spec.block_shape(b)[a] as usize);

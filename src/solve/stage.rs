@@ -376,7 +376,7 @@ fn plan_memory(
     let mut avail = mem.work_bytes().saturating_sub(workers as u64 * per_worker);
     let mut in_memory = vec![false; coarse.len() + 1];
     for (k, s) in coarse.iter().enumerate().rev() {
-        let b = coarse_level_bytes(s);
+        let b = coarse_level_bytes(s) + super::flat::pass_bytes(s, threads);
         if b <= avail {
             avail -= b;
             in_memory[k + 1] = true;
@@ -385,7 +385,7 @@ fn plan_memory(
         }
     }
     // The finest level: labels and two generations of f64.
-    let fine_bytes = fine.num_voxels() * 17;
+    let fine_bytes = fine.num_voxels() * 17 + super::flat::pass_bytes(fine, threads);
     if in_memory.iter().skip(1).all(|&m| m) && fine_bytes <= avail {
         in_memory[0] = true;
     }
@@ -481,6 +481,7 @@ pub fn solve(
             &*h.levels[0].u[0],
             &dir.join(format!("g{}.bin", m.generation)),
         )?;
+        h.levels[0].flat.state_replaced();
         hist = m.history;
         resumed_at = Some(hist.iterations);
         progress.info(&format!("resuming after {} iterations", hist.iterations));
@@ -489,6 +490,7 @@ pub fn solve(
             let _ = fs::remove_file(dir.join(name));
         }
         initialize(&h.levels[0], opts.eps, workers)?;
+        h.levels[0].flat.state_replaced();
     }
 
     let label = format!("solve: {}", opts.method.name());
