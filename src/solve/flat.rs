@@ -508,7 +508,38 @@ pub struct PlanePair {
     ex: Vec<f64>,
 }
 
+/// The interpolated correction at offset `i` of fine plane `z`, from the coarse planes
+/// [`PlanePair::planes_for`] gives: the mean of the two for odd `z` (the z step of
+/// [`super::boxops::prolong`]).
+#[inline]
+fn correction_at(a: &[f64], b: &[f64], z: usize, i: usize) -> f64 {
+    if z % 2 == 1 {
+        0.5 * (a[i] + b[i])
+    } else {
+        a[i]
+    }
+}
+
 impl PlanePair {
+    /// The coarse planes (interpolated in x and y) that fine plane `z` takes its
+    /// correction from: `z / 2`, and `z / 2 + 1` for odd `z` (for even `z`, the same
+    /// plane twice); filled by `fill` unless held already.
+    fn planes_for(
+        &mut self,
+        z: usize,
+        fill: impl Fn(usize, &mut Vec<f64>, &mut Vec<f64>) + Copy,
+    ) -> (&[f64], &[f64]) {
+        let zc = z / 2;
+        let odd = z % 2 == 1;
+        let ka = self.get(zc, odd.then_some(zc + 1), fill);
+        let kb = if odd {
+            self.get(zc + 1, Some(zc), fill)
+        } else {
+            ka
+        };
+        (&self.buf[ka], &self.buf[kb])
+    }
+
     /// The slot holding coarse plane `zc`, filled by `fill` unless it is there already;
     /// the slot holding `keep` is not overwritten.
     fn get(
@@ -604,20 +635,12 @@ fn prolong_add(
                     if z == 0 || z + 1 >= nz || runs.planes[z].is_empty() {
                         continue;
                     }
-                    let zc = z / 2;
-                    let odd = z % 2 == 1;
-                    let ka = pair.get(zc, odd.then_some(zc + 1), plane_xy);
-                    let kb = if odd {
-                        pair.get(zc + 1, Some(zc), plane_xy)
-                    } else {
-                        ka
-                    };
-                    let (a, b) = (&pair.buf[ka], &pair.buf[kb]);
+                    let (a, b) = pair.planes_for(z, plane_xy);
                     for &(y, x0, x1) in &runs.planes[z] {
                         let r = y as usize * nx;
-                        for i in r + x0 as usize..r + x1 as usize {
-                            let c = if odd { 0.5 * (a[i] + b[i]) } else { a[i] };
-                            uz[i] += scale * c;
+                        let (lo, hi) = (r + x0 as usize, r + x1 as usize);
+                        for (i, v) in (lo..).zip(&mut uz[lo..hi]) {
+                            *v += scale * correction_at(a, b, z, i);
                         }
                     }
                 }
@@ -702,18 +725,12 @@ impl Flat<'_> {
                         if z == 0 || z + 1 >= nz || runs.planes[z].is_empty() {
                             return;
                         }
-                        let (zc, odd) = (z / 2, z % 2 == 1);
-                        let ka = pair.get(zc, odd.then_some(zc + 1), plane_xy);
-                        let kb = if odd {
-                            pair.get(zc + 1, Some(zc), plane_xy)
-                        } else {
-                            ka
-                        };
-                        let (a, b) = (&pair.buf[ka], &pair.buf[kb]);
+                        let (a, b) = pair.planes_for(z, plane_xy);
                         for &(y, x0, x1) in &runs.planes[z] {
                             let r = y as usize * nx;
-                            for i in r + x0 as usize..r + x1 as usize {
-                                out[i] = if odd { 0.5 * (a[i] + b[i]) } else { a[i] };
+                            let (lo, hi) = (r + x0 as usize, r + x1 as usize);
+                            for (i, v) in (lo..).zip(&mut out[lo..hi]) {
+                                *v = correction_at(a, b, z, i);
                             }
                         }
                     };
