@@ -60,6 +60,14 @@ impl Runs {
             .collect();
         Self { planes }
     }
+
+    /// The runs of plane `z` as ranges of offsets into the plane (rows of `nx`).
+    fn ranges(&self, z: usize, nx: usize) -> impl Iterator<Item = std::ops::Range<usize>> + '_ {
+        self.planes[z].iter().map(move |&(y, x0, x1)| {
+            let r = y as usize * nx;
+            r + x0 as usize..r + x1 as usize
+        })
+    }
 }
 
 /// The block columns `(by, bx)` of a grid. The block passes sum per block, plane by
@@ -636,10 +644,8 @@ fn prolong_add(
                         continue;
                     }
                     let (a, b) = pair.planes_for(z, plane_xy);
-                    for &(y, x0, x1) in &runs.planes[z] {
-                        let r = y as usize * nx;
-                        let (lo, hi) = (r + x0 as usize, r + x1 as usize);
-                        for (i, v) in (lo..).zip(&mut uz[lo..hi]) {
+                    for r in runs.ranges(z, nx) {
+                        for (i, v) in r.clone().zip(&mut uz[r]) {
                             *v += scale * correction_at(a, b, z, i);
                         }
                     }
@@ -726,10 +732,8 @@ impl Flat<'_> {
                             return;
                         }
                         let (a, b) = pair.planes_for(z, plane_xy);
-                        for &(y, x0, x1) in &runs.planes[z] {
-                            let r = y as usize * nx;
-                            let (lo, hi) = (r + x0 as usize, r + x1 as usize);
-                            for (i, v) in (lo..).zip(&mut out[lo..hi]) {
+                        for r in runs.ranges(z, nx) {
+                            for (i, v) in r.clone().zip(&mut out[r]) {
                                 *v = correction_at(a, b, z, i);
                             }
                         }
