@@ -163,6 +163,12 @@ impl Cache {
     }
 }
 
+/// Planes per slab when `n` planes are cut into slabs for the whole-array passes: about
+/// eight slabs per thread (work stealing evens out slabs of unequal work).
+fn slab_planes(n: usize) -> usize {
+    n.div_ceil(8 * rayon::current_num_threads()).max(1)
+}
+
 fn dims(spec: &GridSpec) -> [usize; 3] {
     spec.shape.map(|c| c as usize)
 }
@@ -188,8 +194,7 @@ fn half_sweep(
     }
     let p = ny * nx;
     let w = omega / 6.0;
-    let slabs = (8 * rayon::current_num_threads()).min(nz - 2).max(1);
-    let per = (nz - 2).div_ceil(slabs);
+    let per = slab_planes(nz - 2);
     for round in 0..2 {
         // Piece 0 is plane 0, piece i (1 ..) slab i - 1 from plane 1 + (i - 1) per, the
         // last piece plane nz - 1.
@@ -240,12 +245,7 @@ fn half_sweep(
                         zm: &prev[r.clone()],
                         zp: &next[r.clone()],
                     };
-                    // The first voxel of `color` in the run: (z + y + x) % 2 == color.
-                    let first = x0 + (z + y + x0 + color) % 2;
-                    match fz {
-                        None => rows.sweep(row, None, first, x1, w),
-                        Some(fz) => rows.sweep(row, Some(&fz[r]), first, x1, w),
-                    }
+                    rows.relax(row, fz.map(|fz| &fz[r]), [x0, x1], z + y + color, w);
                 }
             }
         });
@@ -261,6 +261,25 @@ struct Rows<'a> {
 }
 
 impl Rows<'_> {
+    /// Relax the voxels of the run `x0..x1` of `row` whose `(z + y + x) % 2` is the
+    /// color: `parity` is `z + y + color`.
+    #[inline]
+    fn relax(
+        &self,
+        row: &mut [f64],
+        f: Option<&[f64]>,
+        [x0, x1]: [usize; 2],
+        parity: usize,
+        w: f64,
+    ) {
+        let first = x0 + (parity + x0) % 2;
+        // Two calls, so that the row without a right-hand side is its own loop.
+        match f {
+            None => self.sweep(row, None, first, x1, w),
+            Some(f) => self.sweep(row, Some(f), first, x1, w),
+        }
+    }
+
     /// Relax `row` at `first, first + 2, ...` below `end` (all unknowns): the
     /// arithmetic of [`super::boxops::BoxView::half_sweep`], term by term.
     #[inline]
@@ -352,11 +371,7 @@ fn relax_from(
             if fixed {
                 row[x0..x1].copy_from_slice(&here[y * nx + x0..y * nx + x1]);
             }
-            let first = x0 + (z + y + x0 + color) % 2;
-            match fz {
-                None => rows.sweep(row, None, first, x1, w),
-                Some(fz) => rows.sweep(row, Some(&fz[r]), first, x1, w),
-            }
+            rows.relax(row, fz.map(|fz| &fz[r]), [x0, x1], z + y + color, w);
         }
     });
 }
@@ -379,7 +394,7 @@ fn block_stats(
     let [nz, ny, nx] = dims(spec);
     let (sy, sz) = (nx, nx * ny);
     let cols = Columns::of(spec);
-    let per = nz.div_ceil(8 * rayon::current_num_threads()).max(1);
+    let per = slab_planes(nz);
     let slabs: Vec<(f64, u64, Vec<Vec<f64>>)> = (0..nz.div_ceil(per))
         .into_par_iter()
         .map(|slab| {
@@ -468,7 +483,7 @@ fn restrict(
     let [_, ny, nx] = fine;
     let [cnz, cny, cnx] = coarse;
     let (p, cp) = (ny * nx, cny * cnx);
-    let per = cnz.div_ceil(8 * rayon::current_num_threads()).max(1);
+    let per = slab_planes(cnz);
     cf.par_chunks_mut(per * cp)
         .enumerate()
         .for_each(|(slab, outs)| {
@@ -632,7 +647,7 @@ fn prolong_add(
     let plane_xy = |zc: usize, ex: &mut Vec<f64>, out: &mut Vec<f64>| {
         interpolate_xy(e, [cny, cnx], [ny, nx], zc, ex, out);
     };
-    let per = nz.div_ceil(8 * rayon::current_num_threads()).max(1);
+    let per = slab_planes(nz);
     u.par_chunks_mut(per * p)
         .enumerate()
         .for_each(|(slab, planes)| {
@@ -714,7 +729,7 @@ impl Flat<'_> {
         let plane_xy = |zc: usize, ex: &mut Vec<f64>, out: &mut Vec<f64>| {
             interpolate_xy(&e, [cny, cnx], [ny, nx], zc, ex, out);
         };
-        let per = nz.div_ceil(8 * rayon::current_num_threads()).max(1);
+        let per = slab_planes(nz);
         // Per plane, the sum over each block column (by, bx) of the plane.
         let sums: Vec<Vec<Vec<f64>>> = (0..nz.div_ceil(per))
             .into_par_iter()
