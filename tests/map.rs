@@ -103,19 +103,28 @@ fn upwind_and_exact_maps_of_the_ball_are_radial() {
         quantile(&mut all, 1.0),
     );
     eprintln!("upwind: median {up50:.3}, max {up_max:.3}, max below the surface {up_deep_max:.3}");
+    // Within half a degree everywhere (0.45 measured; 1.04 on the boundary layer
+    // before the boundary nodes had sub-voxel values, docs/map.md).
     assert!(up50 < 0.2, "median {up50}");
     assert!(
         up_deep_max < 0.5,
         "max below the boundary layer {up_deep_max}"
     );
-    assert!(up_max < 1.5, "max {up_max}");
+    assert!(up_max < 0.5, "max {up_max}");
 
     let rep = run_map(&run, MapMethod::Exact, MemBudget::default());
     assert_eq!(rep.mapped, rep.voxels);
     let (mut all, mut deep) = radial_errors(&run, rep.stop_radius);
-    let (ex50, ex_deep_max) = (quantile(&mut all, 0.5), quantile(&mut deep, 1.0));
-    eprintln!("exact: median {ex50:.3}, max below the surface {ex_deep_max:.3}");
-    assert!(ex50 < 0.1 && ex_deep_max < 0.5, "{ex50} {ex_deep_max}");
+    let (ex50, ex_deep_max, ex_max) = (
+        quantile(&mut all, 0.5),
+        quantile(&mut deep, 1.0),
+        quantile(&mut all, 1.0),
+    );
+    eprintln!("exact: median {ex50:.3}, max {ex_max:.3}, max below the surface {ex_deep_max:.3}");
+    assert!(
+        ex50 < 0.1 && ex_deep_max < 0.5 && ex_max < 0.5,
+        "{ex50} {ex_deep_max} {ex_max}"
+    );
     // The reference is the more accurate one.
     assert!(ex50 < up50);
 }

@@ -40,8 +40,9 @@ fn radial_errors(run: &Path, t: &SeedTable) -> Vec<f64> {
 }
 
 /// On the ball every streamline is (nearly) a radius: the arrival direction is the
-/// seed's own. What remains is the staircase of the voxelized sphere bending streamlines
-/// in their first voxels (docs/trace.md), which shrinks as the grid is refined.
+/// seed's own. The boundary nodes' sub-voxel values (trace::surface) straighten the
+/// first voxels, where the voxelized sphere's staircase would bend them (docs/trace.md);
+/// what remains shrinks as the grid is refined.
 #[test]
 fn ball_seeds_arrive_along_their_own_direction() {
     let dir = tempfile::tempdir().unwrap();
@@ -63,12 +64,13 @@ fn ball_seeds_arrive_along_their_own_direction() {
         );
         stats.push((med, max));
     }
-    // Both fall with refinement; at N = 96, a fifth of a degree typically, 1 at most.
+    // Both fall with refinement; at N = 96, under a tenth of a degree typically and
+    // half a degree at most (0.07 and 0.39 measured; 0.14 and 0.69 with the staircase).
     assert!(
         stats[1].0 < stats[0].0 && stats[1].1 < stats[0].1,
         "{stats:?}"
     );
-    assert!(stats[1].0 < 0.2 && stats[1].1 < 1.0, "{stats:?}");
+    assert!(stats[1].0 < 0.1 && stats[1].1 < 0.5, "{stats:?}");
 }
 
 /// Every column of two tables, bit for bit.
@@ -100,7 +102,7 @@ fn tables_are_the_same_for_any_threads_tiles_and_budget() {
         (2, Some(16), MemBudget::default()),
         (2, Some(24), MemBudget::default()),
         // Room for three tiles of 16 and eight chunks: tiles are evicted and built again.
-        (2, Some(16), MemBudget(28 << 20)),
+        (2, Some(16), MemBudget(29 << 20)),
     ] {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)

@@ -25,6 +25,7 @@ use crate::parallel::map_bounded;
 use crate::progress::Progress;
 use crate::trace::field::Tile;
 use crate::trace::integrate::StopBall;
+use crate::trace::surface::REACH as SURFACE_REACH;
 
 /// Whether a label takes part in the map (boundary, interior, center).
 #[must_use]
@@ -145,8 +146,10 @@ pub struct TransportStats {
 #[must_use]
 pub fn worker_bytes(chunk: Idx3) -> u64 {
     let h = volume(chunk.map(|c| c + 2 * HALO));
-    // u (f64), labels (u8), three f32 components, the visiting order and the output.
-    h * (8 + 1 + 12) + volume(chunk) * (12 + 32)
+    let wide = volume(chunk.map(|c| c + 2 * (HALO + SURFACE_REACH as u64)));
+    // u (f64), labels (u8), three f32 components, the visiting order and the output;
+    // the direction tile (four f32), the u it is built from and its corrected copy.
+    h * (8 + 1 + 12) + volume(chunk) * (12 + 32) + h * (16 + 8) + wide * 8
 }
 
 /// Transport the arrival direction into `dirs` for every target voxel.
@@ -288,19 +291,6 @@ fn visit(
     let lb = labels.read_block_halo(b, h, 0)?;
     let mut d = dirs.read_halo(b)?;
     let hs = shape.map(|c| c as usize + 2 * h);
-    let tile = Tile::from_u(
-        &ub,
-        ub.origin.map(|o| o + 1),
-        [hs[0] - 2, hs[1] - 2, hs[2] - 2],
-    );
-    let region = Region {
-        u: &ub.data,
-        lab: &lb.data,
-        hs,
-        origin: ub.origin,
-        tile: &tile,
-        ball,
-    };
     let strides = [hs[1] * hs[2], hs[2], 1];
     let at = |z: usize, y: usize, x: usize| (z * hs[1] + y) * hs[2] + x;
     // Upwind voxels are computed in the halo too (all but its outer layer, whose
@@ -320,6 +310,24 @@ fn visit(
             }
         }
     }
+    if todo.is_empty() {
+        return Ok(v);
+    }
+    // The tile covers the block's halo but its last node; the boundary nodes' values
+    // need SURFACE_REACH more nodes of u around that.
+    let tile = Tile::from_u(
+        &u.read_block_halo(b, h + SURFACE_REACH, f64::NAN)?,
+        ub.origin.map(|o| o + 1),
+        [hs[0] - 2, hs[1] - 2, hs[2] - 2],
+    );
+    let region = Region {
+        u: &ub.data,
+        lab: &lb.data,
+        hs,
+        origin: ub.origin,
+        tile: &tile,
+        ball,
+    };
     // Decreasing u; ties in index order (the keys are distinct, so the order is
     // deterministic).
     todo.sort_unstable_by_key(|t| (std::cmp::Reverse(ordered(t.0)), t.1));

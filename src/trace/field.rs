@@ -13,7 +13,12 @@
 
 use glam::{DVec3, Vec4};
 
+use super::surface::{self, REACH};
 use crate::grid::Block;
+
+/// Nodes of u a tile is built from beyond its own box on every side: one for the
+/// central differences, and the reach of the boundary nodes' sub-voxel values.
+pub const U_MARGIN: usize = REACH + 1;
 
 /// Why the field has no direction at a point.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -43,11 +48,15 @@ fn floor(x: f64) -> i64 {
 
 impl Tile {
     /// Node directions over the box `[origin, origin + shape)` from `u` = 1 - phi, which
-    /// must hold that box with one more node on every side (NaN where there is no value).
+    /// must hold that box with [`U_MARGIN`] more nodes on every side (NaN where there is
+    /// no value). The differences read the boundary nodes' sub-voxel values
+    /// ([`super::surface`]); the u the tile keeps is the stored one.
     #[must_use]
-    pub fn from_u(phi: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Self {
-        debug_assert!((0..3).all(|a| phi.origin[a] == origin[a] - 1));
-        debug_assert!((0..3).all(|a| phi.shape[a] == shape[a] + 2));
+    pub fn from_u(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Self {
+        debug_assert!((0..3).all(|a| u.origin[a] == origin[a] - U_MARGIN as i64));
+        debug_assert!((0..3).all(|a| u.shape[a] == shape[a] + 2 * U_MARGIN));
+        let surf = surface::Surface::of(u);
+        let phi = &surf.corrected(origin, shape);
         let [_, sy, sx] = phi.shape;
         let strides = [sy * sx, sx, 1];
         let mut nodes = Vec::with_capacity(shape[0] * shape[1] * shape[2]);
@@ -90,12 +99,36 @@ impl Tile {
                         g = steepest.1;
                         n = 1.0;
                     }
+                    // On the exterior layers (where phi only keeps streamlines in),
+                    // the staircase would point along the axes: a node that shares a
+                    // cell with the solid (as the corners of the cells that surface
+                    // seeds start in do) goes along the smoothed surface's inward
+                    // normal instead.
+                    let shares_a_cell = || {
+                        (0..27).any(|k| {
+                            let d = [k / 9, k / 3 % 3, k % 3];
+                            let q = o + d[0] * strides[0] + d[1] * strides[1] + d[2];
+                            phi.data[q - strides[0] - strides[1] - 1] >= 0.0
+                        })
+                    };
+                    if p0 < 0.0 && shares_a_cell() {
+                        let l = [z + U_MARGIN, y + U_MARGIN, x + U_MARGIN];
+                        if let Some(inward) = surf.inward(l) {
+                            g = inward;
+                            n = 1.0;
+                        }
+                    }
                     let d = if n > 0.0 && n.is_finite() {
                         g.map(|c| (c / n) as f32)
                     } else {
                         [0.0; 3]
                     };
-                    nodes.push(Vec4::new(d[0], d[1], d[2], p0 as f32));
+                    nodes.push(Vec4::new(
+                        d[0],
+                        d[1],
+                        d[2],
+                        u.data[u.offset(z + U_MARGIN, y + U_MARGIN, x + U_MARGIN)] as f32,
+                    ));
                 }
             }
         }
@@ -289,27 +322,35 @@ impl Tile {
 mod tests {
     use super::*;
 
+    /// u at the nodes a tile of `n` nodes from the origin is built from: `f(x, y, z)` at
+    /// node (x, y, z).
+    fn grid(n: usize, f: impl Fn(f64, f64, f64) -> f64) -> Block<f64> {
+        let m = U_MARGIN as i64;
+        let mut u = Block::filled([-m; 3], [n + 2 * U_MARGIN; 3], 0.0f64);
+        for z in 0..u.shape[0] {
+            for y in 0..u.shape[1] {
+                for x in 0..u.shape[2] {
+                    let o = u.offset(z, y, x);
+                    let c = [x, y, z].map(|v| (v as i64 - m) as f64);
+                    u.data[o] = f(c[0], c[1], c[2]);
+                }
+            }
+        }
+        u
+    }
+
     /// u linear in x, y and z: every node direction is the normalized gradient.
     #[test]
     fn linear_u_has_its_exact_direction() {
         let n = 8usize;
-        let mut u = Block::filled([-1, -1, -1], [n + 2; 3], 0.0f64);
-        for z in 0..n + 2 {
-            for y in 0..n + 2 {
-                for x in 0..n + 2 {
-                    let o = u.offset(z, y, x);
-                    u.data[o] = 0.5 * x as f64 - 0.25 * y as f64 + 0.125 * z as f64;
-                }
-            }
-        }
+        let u = grid(n, |x, y, z| 0.5 * x - 0.25 * y + 0.125 * z);
         let t = Tile::from_u(&u, [0, 0, 0], [n; 3]);
         let p = DVec3::new(3.3, 2.7, 5.9);
         assert!(t.holds(p));
         let (g, v) = t.interpolate(p).unwrap();
         let want = DVec3::new(0.5, -0.25, 0.125).normalize();
         assert!((g - want).length() < 1e-6);
-        // u at p in the shifted frame of the block (node (0,0,0) is at local index 1).
-        let exact = 0.5 * (p.x + 1.0) - 0.25 * (p.y + 1.0) + 0.125 * (p.z + 1.0);
+        let exact = 0.5 * p.x - 0.25 * p.y + 0.125 * p.z;
         assert!((v - exact).abs() < 1e-5);
         assert!((t.direction(p).unwrap() - want).length() < 1e-6);
         assert!(
@@ -322,15 +363,7 @@ mod tests {
     #[test]
     fn tiny_gradients_keep_their_direction() {
         let n = 6usize;
-        let mut u = Block::filled([-1, -1, -1], [n + 2; 3], 0.0f64);
-        for z in 0..n + 2 {
-            for y in 0..n + 2 {
-                for x in 0..n + 2 {
-                    let o = u.offset(z, y, x);
-                    u.data[o] = 1e-30 * (-(x as f64)).exp() * (1.0 + 0.1 * y as f64);
-                }
-            }
-        }
+        let u = grid(n, |x, y, _| 1e-30 * (-x).exp() * (1.0 + 0.1 * y));
         let t = Tile::from_u(&u, [0, 0, 0], [n; 3]);
         let d = t.direction(DVec3::new(2.5, 2.5, 2.5)).unwrap();
         assert!(d.x < -0.9 && d.y > 0.0, "{d}");
@@ -339,8 +372,8 @@ mod tests {
     #[test]
     fn missing_corners_and_flat_regions_give_no_direction() {
         let n = 6usize;
-        let mut u = Block::filled([-1, -1, -1], [n + 2; 3], 0.25f64);
-        let o = u.offset(4, 4, 4);
+        let mut u = grid(n, |_, _, _| 0.25);
+        let o = u.offset(3 + U_MARGIN, 3 + U_MARGIN, 3 + U_MARGIN);
         u.data[o] = f64::NAN; // node (3, 3, 3)
         let t = Tile::from_u(&u, [0, 0, 0], [n; 3]);
         assert_eq!(
@@ -358,18 +391,14 @@ mod tests {
     #[test]
     fn escapes_go_to_the_nearest_higher_node() {
         let n = 10usize;
-        let mut u = Block::filled([-1, -1, -1], [n + 2; 3], 0.0f64);
-        let o = u.offset(5 + 1, 4 + 1, 7 + 1); // node (x 7, y 4, z 5)
+        let mut u = grid(n, |_, _, _| 0.0);
+        let o = u.offset(5 + U_MARGIN, 4 + U_MARGIN, 7 + U_MARGIN); // node (x 7, y 4, z 5)
         u.data[o] = 1e-20;
         let t = Tile::from_u(&u, [0, 0, 0], [n; 3]);
         let q = t.escape(DVec3::new(5.2, 4.5, 5.0), 3).unwrap();
         assert_eq!(q, DVec3::new(7.0, 4.0, 5.0));
         assert!(t.escape(DVec3::new(5.2, 4.5, 5.0), 0).is_none());
-        let flat = Tile::from_u(
-            &Block::filled([-1, -1, -1], [n + 2; 3], 0.0),
-            [0; 3],
-            [n; 3],
-        );
+        let flat = Tile::from_u(&grid(n, |_, _, _| 0.0), [0; 3], [n; 3]);
         assert!(flat.escape(DVec3::new(5.2, 4.5, 5.0), 3).is_none());
     }
 }

@@ -352,16 +352,19 @@ pub fn advance(
 mod tests {
     use super::*;
     use crate::grid::Block;
+    use crate::trace::field::U_MARGIN;
 
-    /// phi = |x - c| (a cone, u = 1 - phi): streamlines are straight rays to c.
+    /// phi = |x - c| - 1000 (a cone, u = 1 - phi, positive: all solid): streamlines are
+    /// straight rays to c.
     fn cone(n: usize, c: DVec3) -> Tile {
-        let mut phi = Block::filled([-1, -1, -1], [n + 2; 3], 0.0f64);
-        for z in 0..n + 2 {
-            for y in 0..n + 2 {
-                for x in 0..n + 2 {
-                    let p = DVec3::new(x as f64 - 1.0, y as f64 - 1.0, z as f64 - 1.0);
+        let m = U_MARGIN;
+        let mut phi = Block::filled([-(m as i64); 3], [n + 2 * m; 3], 0.0f64);
+        for z in 0..n + 2 * m {
+            for y in 0..n + 2 * m {
+                for x in 0..n + 2 * m {
+                    let p = DVec3::new(x as f64, y as f64, z as f64) - m as f64;
                     let o = phi.offset(z, y, x);
-                    phi.data[o] = 1.0 - (p - c).length();
+                    phi.data[o] = 1000.0 - (p - c).length();
                 }
             }
         }

@@ -2,6 +2,7 @@
 //! they arrive (the paper's steps 6-8).
 //!
 //! - [`field`]: node gradients of phi, trilinearly interpolated (a continuous field);
+//! - [`surface`]: sub-voxel values of u at the boundary nodes, for the field;
 //! - [`integrate`]: Dormand–Prince RK45 by arc length, with error control, stop reasons;
 //! - [`tiles`]: streamlines queued per tile, tiles built into a cache within the budget;
 //! - [`seeds`]: boundary voxels or surface vertices, and deterministic sampling;
@@ -14,6 +15,7 @@ pub mod integrate;
 pub mod metrics;
 pub mod seeds;
 pub mod stage;
+pub mod surface;
 pub mod tiles;
 
 pub use integrate::{Rk45, Stop};

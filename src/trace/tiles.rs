@@ -9,7 +9,7 @@ use std::sync::{Arc, Mutex};
 use glam::DVec3;
 use rayon::prelude::*;
 
-use super::field::Tile;
+use super::field::{Tile, U_MARGIN};
 use super::integrate::{advance, Advance, Line, Rk45, Stop, StopBall};
 use crate::grid::{copy_overlap, to_usize, Block, BlockStore, GridError, GridSpec};
 use crate::math::{volume, Idx3};
@@ -283,7 +283,8 @@ pub fn trace_tiled(
             .with_max_len(1)
             .map(|&k| {
                 let (origin, shape) = tiling.node_box(k);
-                let phi = chunks.region(origin.map(|c| c - 1), shape.map(|c| c + 2))?;
+                let m = U_MARGIN;
+                let phi = chunks.region(origin.map(|c| c - m as i64), shape.map(|c| c + 2 * m))?;
                 Ok((k, Arc::new(Tile::from_u(&phi, origin, shape))))
             })
             .collect::<Result<_, GridError>>()?;
@@ -377,6 +378,8 @@ pub fn trace_tiled(
 #[must_use]
 pub fn footprint(edge: u64, halo: i64, spec: &GridSpec) -> (u64, u64) {
     let s = (edge as i64 + 2 * halo) as usize;
-    let phi_box = ((s + 2) * (s + 2) * (s + 2) * 8) as u64;
+    // The u box a tile is built from, and the copy with the boundary nodes' values.
+    let (b, c) = (s + 2 * U_MARGIN, s + 2);
+    let phi_box = ((b * b * b + c * c * c) * 8) as u64;
     (Tile::bytes([s; 3]) + phi_box, volume(spec.chunk) * 8)
 }
