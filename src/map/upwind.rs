@@ -19,7 +19,7 @@
 use glam::DVec3;
 use rayon::prelude::*;
 
-use crate::grid::{BlockStore, GridError, MemStore, MmapStore};
+use crate::grid::{Block, BlockStore, GridError, MemStore, MmapStore};
 use crate::math::{volume, Idx3};
 use crate::parallel::map_bounded;
 use crate::progress::Progress;
@@ -287,10 +287,17 @@ fn visit(
     let start = spec.block_start(b);
     let shape = spec.block_shape(b);
     let h = HALO as usize;
-    let ub = u.read_block_halo(b, h, f64::NAN)?;
+    // u is read once, with the margin the tile's boundary values need; the visit's
+    // own arrays keep the halo of HALO.
+    let wide = u.read_block_halo(b, h + SURFACE_REACH, f64::NAN)?;
+    let hs = shape.map(|c| c as usize + 2 * h);
+    let ub = Block {
+        origin: wide.origin.map(|o| o + SURFACE_REACH as i64),
+        shape: hs,
+        data: wide.crop([SURFACE_REACH; 3], hs),
+    };
     let lb = labels.read_block_halo(b, h, 0)?;
     let mut d = dirs.read_halo(b)?;
-    let hs = shape.map(|c| c as usize + 2 * h);
     let strides = [hs[1] * hs[2], hs[2], 1];
     let at = |z: usize, y: usize, x: usize| (z * hs[1] + y) * hs[2] + x;
     // Upwind voxels are computed in the halo too (all but its outer layer, whose
@@ -316,10 +323,11 @@ fn visit(
     // The tile covers the block's halo but its last node; the boundary nodes' values
     // need SURFACE_REACH more nodes of u around that.
     let tile = Tile::from_u(
-        &u.read_block_halo(b, h + SURFACE_REACH, f64::NAN)?,
+        &wide,
         ub.origin.map(|o| o + 1),
         [hs[0] - 2, hs[1] - 2, hs[2] - 2],
     );
+    drop(wide);
     let region = Region {
         u: &ub.data,
         lab: &lb.data,

@@ -55,8 +55,9 @@ impl Tile {
     pub fn from_u(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Self {
         debug_assert!((0..3).all(|a| u.origin[a] == origin[a] - U_MARGIN as i64));
         debug_assert!((0..3).all(|a| u.shape[a] == shape[a] + 2 * U_MARGIN));
-        let surf = surface::Surface::of(u);
-        let phi = &surf.corrected(origin, shape);
+        let corr = surface::corrections(u, origin, shape);
+        let phi = &corr.u;
+        let mut normals = corr.normals.iter().peekable();
         let [_, sy, sx] = phi.shape;
         let strides = [sy * sx, sx, 1];
         let mut nodes = Vec::with_capacity(shape[0] * shape[1] * shape[2]);
@@ -103,20 +104,11 @@ impl Tile {
                     // the staircase would point along the axes: a node that shares a
                     // cell with the solid (as the corners of the cells that surface
                     // seeds start in do) goes along the smoothed surface's inward
-                    // normal instead.
-                    let shares_a_cell = || {
-                        (0..27).any(|k| {
-                            let d = [k / 9, k / 3 % 3, k % 3];
-                            let q = o + d[0] * strides[0] + d[1] * strides[1] + d[2];
-                            phi.data[q - strides[0] - strides[1] - 1] >= 0.0
-                        })
-                    };
-                    if p0 < 0.0 && shares_a_cell() {
-                        let l = [z + U_MARGIN, y + U_MARGIN, x + U_MARGIN];
-                        if let Some(inward) = surf.inward(l) {
-                            g = inward;
-                            n = 1.0;
-                        }
+                    // normal instead. Nodes come in increasing offset, as the normals.
+                    while normals.next_if(|n| n.0 < o).is_some() {}
+                    if let Some((_, inward)) = normals.next_if(|n| n.0 == o) {
+                        g = *inward;
+                        n = 1.0;
                     }
                     let d = if n > 0.0 && n.is_finite() {
                         g.map(|c| (c / n) as f32)

@@ -124,115 +124,171 @@ impl Bits {
     }
 }
 
-/// The smoothed solid indicator of a block of u, evaluated at its nodes on demand.
-pub struct Surface<'a> {
-    u: &'a Block<f64>,
-    bits: std::cell::OnceCell<Bits>,
+/// What a tile's direction field takes from the smoothed surface.
+pub struct Corrections {
+    /// u over the box `[origin - 1, origin + shape + 1)`: the stored values, with every
+    /// boundary node (u = 0 next to a node outside the solid) given its sub-voxel value.
+    pub u: Block<f64>,
+    /// The unit inward normal (x, y, z) at each node of the box outside the solid that
+    /// shares a cell with it, by offset into `u`, in increasing offset.
+    pub normals: Vec<(usize, [f64; 3])>,
 }
 
-impl<'a> Surface<'a> {
-    /// The surface of the solid of `u` (its nodes with u >= 0).
-    #[must_use]
-    pub fn of(u: &'a Block<f64>) -> Self {
-        Self {
-            u,
-            bits: std::cell::OnceCell::new(),
-        }
-    }
+/// The kinds of node the smoothed surface is evaluated at.
+#[derive(Clone, Copy, PartialEq)]
+enum Query {
+    /// A boundary node: its sub-voxel value.
+    Boundary,
+    /// An exterior node next to the solid: its inward normal.
+    Outside,
+}
 
-    /// s and grad s (x, y, z) at local node `l`, which must lie [`REACH`] inside the
-    /// block.
-    fn smoothed(&self, l: [usize; 3]) -> (f64, [f64; 3]) {
-        let bits = self.bits.get_or_init(|| Bits::of(self.u));
-        let k = kernel();
-        let (mut s, mut g) = (0.0f64, [0.0f64; 3]);
-        for (i, (kz, dkz)) in k.k.iter().zip(&k.dk).enumerate() {
-            for (j, (ky, dky)) in k.k.iter().zip(&k.dk).enumerate() {
-                let p = bits.window(l[0] + i - RADIUS, l[1] + j - RADIUS, l[2]);
-                if p == 0 {
-                    continue;
-                }
-                let (a, b) = (k.sum[p], k.dsum[p]);
-                s += kz * ky * a;
-                g[0] += kz * ky * b;
-                g[1] += kz * dky * a;
-                g[2] += dkz * ky * a;
-            }
-        }
-        (s, g)
-    }
-
-    /// The unit inward normal (x, y, z) of the smoothed surface at local node `l`
-    /// ([`REACH`] inside the block), if its gradient is not too small.
-    #[must_use]
-    pub fn inward(&self, l: [usize; 3]) -> Option<[f64; 3]> {
-        let (_, g) = self.smoothed(l);
-        let norm = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
-        (norm >= MIN_GRADIENT).then(|| g.map(|c| c / norm))
-    }
-
-    /// The sub-voxel value of the boundary node at local index `l`, if defined.
-    fn boundary_value(&self, l: [usize; 3]) -> Option<f64> {
-        let (s, g) = self.smoothed(l);
-        // grad s = (g x, g y, g z); the outward normal is its opposite.
-        let norm = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
-        if norm < MIN_GRADIENT {
-            return None;
-        }
-        let d = (s - 0.5) / norm;
-        if !(0.0..=1.0).contains(&d) {
-            return None;
-        }
-        // The point one voxel inward, b - n = b + grad s / |grad s|, as an offset from b
-        // (z, y, x): the same bits wherever b sits in the block.
-        let q = [g[2] / norm, g[1] / norm, g[0] / norm];
-        let inward = interpolate_solid(self.u, l, q)?;
-        Some(d / (1.0 + d) * inward)
-    }
-
-    /// u over the box `[origin - 1, origin + shape + 1)` from the block, which holds
-    /// that box with [`REACH`] more nodes on every side: the stored values, with every
-    /// boundary node (u = 0 next to a node outside the solid) given its sub-voxel value.
-    #[must_use]
-    pub fn corrected(&self, origin: [i64; 3], shape: [usize; 3]) -> Block<f64> {
-        let u = self.u;
-        let m = REACH + 1;
-        debug_assert!((0..3).all(|a| u.origin[a] == origin[a] - m as i64));
-        debug_assert!((0..3).all(|a| u.shape[a] == shape[a] + 2 * m));
-        let inner: [usize; 3] = shape.map(|s| s + 2);
-        let mut out = Block::filled(origin.map(|o| o - 1), inner, f64::NAN);
-        let [_, sy, sx] = u.shape;
-        let strides = [sy * sx, sx, 1];
-        for z in 0..inner[0] {
-            for y in 0..inner[1] {
-                let src = u.offset(z + REACH, y + REACH, REACH);
-                let dst = out.offset(z, y, 0);
-                out.data[dst..dst + inner[2]].copy_from_slice(&u.data[src..src + inner[2]]);
-                for x in 0..inner[2] {
-                    let o = src + x;
-                    if u.data[o] != 0.0 {
-                        continue;
-                    }
+/// The corrections of the box `[origin, origin + shape)` from `u`, which holds that box
+/// with `REACH + 1` more nodes on every side.
+#[must_use]
+pub fn corrections(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Corrections {
+    let m = REACH + 1;
+    debug_assert!((0..3).all(|a| u.origin[a] == origin[a] - m as i64));
+    debug_assert!((0..3).all(|a| u.shape[a] == shape[a] + 2 * m));
+    let inner: [usize; 3] = shape.map(|s| s + 2);
+    let mut out = Block::filled(origin.map(|o| o - 1), inner, f64::NAN);
+    let [_, sy, sx] = u.shape;
+    let strides = [sy * sx, sx, 1];
+    // The nodes to evaluate, as local indices of `u` (z, y, x).
+    let mut queries: Vec<([usize; 3], Query)> = Vec::new();
+    for z in 0..inner[0] {
+        for y in 0..inner[1] {
+            let src = u.offset(z + REACH, y + REACH, REACH);
+            let dst = out.offset(z, y, 0);
+            out.data[dst..dst + inner[2]].copy_from_slice(&u.data[src..src + inner[2]]);
+            for x in 0..inner[2] {
+                let o = src + x;
+                let v = u.data[o];
+                let l = [z + REACH, y + REACH, x + REACH];
+                if v == 0.0 {
                     let open = strides
                         .iter()
                         .any(|&s| !solid(u.data[o - s]) || !solid(u.data[o + s]));
-                    if !open {
-                        continue;
+                    if open {
+                        queries.push((l, Query::Boundary));
                     }
-                    if let Some(v) = self.boundary_value([z + REACH, y + REACH, x + REACH]) {
-                        out.data[dst + x] = v;
+                } else if v < 0.0 {
+                    // Only the box itself needs directions.
+                    let in_box = [z, y, x]
+                        .iter()
+                        .zip(&inner)
+                        .all(|(&c, &n)| c > 0 && c + 1 < n);
+                    let shares_a_cell = || {
+                        (0..27).any(|k| {
+                            let q = o + (k / 9) * strides[0] + (k / 3 % 3) * strides[1] + k % 3;
+                            solid(u.data[q - strides[0] - strides[1] - 1])
+                        })
+                    };
+                    if in_box && shares_a_cell() {
+                        queries.push((l, Query::Outside));
                     }
                 }
             }
         }
-        out
+    }
+    let mut normals = Vec::new();
+    if queries.is_empty() {
+        return Corrections { u: out, normals };
+    }
+    let bits = Bits::of(u);
+    // By column (y, x), then z: the row sums along y are shared down a column.
+    queries.sort_unstable_by_key(|(l, _)| (l[1], l[2], l[0]));
+    let mut column = Column::default();
+    for &(l, kind) in &queries {
+        let (s, g) = column.smoothed(&bits, l);
+        let o = out.offset(l[0] - REACH, l[1] - REACH, l[2] - REACH);
+        let norm = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+        if norm < MIN_GRADIENT {
+            continue;
+        }
+        match kind {
+            Query::Boundary => {
+                if let Some(v) = boundary_value(u, l, s, g, norm) {
+                    out.data[o] = v;
+                }
+            }
+            Query::Outside => normals.push((o, g.map(|c| c / norm))),
+        }
+    }
+    normals.sort_unstable_by_key(|n| n.0);
+    Corrections { u: out, normals }
+}
+
+/// The sums along y of the row sums along x for one column (y, x) of nodes, by z:
+/// (sum k T, sum k dT, sum dk T) with T the kernel's sum over a row's solid bits and dT
+/// its derivative's. Computed once per z, whichever nodes of the column need them.
+#[derive(Default)]
+struct Column {
+    at: Option<(usize, usize)>,
+    /// Per z: the column the sums were computed for (a count), and the sums.
+    sums: Vec<(u64, [f64; 3])>,
+    count: u64,
+}
+
+impl Column {
+    /// s and grad s (x, y, z) at local node `l` ([`REACH`] inside the block).
+    fn smoothed(&mut self, bits: &Bits, l: [usize; 3]) -> (f64, [f64; 3]) {
+        if self.at != Some((l[1], l[2])) {
+            self.at = Some((l[1], l[2]));
+            self.count += 1;
+            if self.sums.len() < bits.shape[0] {
+                self.sums.resize(bits.shape[0], (0, [0.0; 3]));
+            }
+        }
+        let k = kernel();
+        let (mut s, mut g) = (0.0f64, [0.0f64; 3]);
+        for (i, (kz, dkz)) in k.k.iter().zip(&k.dk).enumerate() {
+            let z = l[0] + i - RADIUS;
+            let slot = &mut self.sums[z];
+            if slot.0 != self.count {
+                let mut r = [0.0f64; 3];
+                for (j, (ky, dky)) in k.k.iter().zip(&k.dk).enumerate() {
+                    let p = bits.window(z, l[1] + j - RADIUS, l[2]);
+                    if p == 0 {
+                        continue;
+                    }
+                    let (t, dt) = (k.sum[p], k.dsum[p]);
+                    r[0] += ky * t;
+                    r[1] += ky * dt;
+                    r[2] += dky * t;
+                }
+                *slot = (self.count, r);
+            }
+            let [a, b, c] = slot.1;
+            s += kz * a;
+            g[0] += kz * b;
+            g[1] += kz * c;
+            g[2] += dkz * a;
+        }
+        (s, g)
     }
 }
 
-/// [`Surface::corrected`] of the surface of `u`.
+/// The sub-voxel value of the boundary node at local index `l` of `u`, from the smoothed
+/// indicator `s` there and its gradient `g` (x, y, z) of length `norm`, if defined.
+fn boundary_value(u: &Block<f64>, l: [usize; 3], s: f64, g: [f64; 3], norm: f64) -> Option<f64> {
+    // grad s points inward; the depth below the 1/2 level along the outward normal:
+    let d = (s - 0.5) / norm;
+    if !(0.0..=1.0).contains(&d) {
+        return None;
+    }
+    // The point one voxel inward, b - n = b + grad s / |grad s|, as an offset from b
+    // (z, y, x): the same bits wherever b sits in the block.
+    let q = [g[2] / norm, g[1] / norm, g[0] / norm];
+    let inward = interpolate_solid(u, l, q)?;
+    Some(d / (1.0 + d) * inward)
+}
+
+/// [`corrections`]`(..).u`: u over the box and one more node, with the boundary nodes'
+/// sub-voxel values.
 #[must_use]
 pub fn corrected(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Block<f64> {
-    Surface::of(u).corrected(origin, shape)
+    corrections(u, origin, shape).u
 }
 
 /// u at `l + q` (local node `l`, offset `q` within one node; z, y, x) interpolated
@@ -386,23 +442,21 @@ mod tests {
     #[test]
     fn inward_normals_of_a_ball_point_at_its_center() {
         let (n, r, c) = (48usize, 17.3, 23.6);
-        let u = ball(n, 0, c, r);
-        let surf = Surface::of(&u);
+        let m = REACH + 1;
+        let u = ball(n, -(m as i64), c - m as f64, r);
+        let out = corrections(&u, [0; 3], [n - 2 * m; 3]);
         let mut angles = Vec::new();
-        for z in REACH..n - REACH {
-            for y in REACH..n - REACH {
-                for x in REACH..n - REACH {
-                    if u.data[u.offset(z, y, x)] >= 0.0 || u.data[u.offset(z, y, x)].is_nan() {
-                        continue;
-                    }
-                    let g = surf.inward([z, y, x]).expect("a normal next to the ball");
-                    let to_c = [x, y, z].map(|v| c - v as f64);
-                    let len = (to_c[0].powi(2) + to_c[1].powi(2) + to_c[2].powi(2)).sqrt();
-                    let cos = (0..3).map(|a| g[a] * to_c[a] / len).sum::<f64>();
-                    angles.push(cos.clamp(-1.0, 1.0).acos().to_degrees());
-                }
-            }
+        for &(o, g) in &out.normals {
+            let [sy, sx] = [out.u.shape[1], out.u.shape[2]];
+            let l = [o / (sy * sx), o / sx % sy, o % sx];
+            assert!(out.u.data[o] < 0.0, "normals only outside the solid");
+            // Node (z, y, x) of the box is local l + 1 of `out.u`.
+            let to_c = [l[2], l[1], l[0]].map(|v| c - m as f64 - (v as f64 - 1.0));
+            let len = (to_c[0].powi(2) + to_c[1].powi(2) + to_c[2].powi(2)).sqrt();
+            let cos = (0..3).map(|a| g[a] * to_c[a] / len).sum::<f64>();
+            angles.push(cos.clamp(-1.0, 1.0).acos().to_degrees());
         }
+        assert!(out.normals.windows(2).all(|w| w[0].0 < w[1].0));
         angles.sort_by(f64::total_cmp);
         let (med, max) = (angles[angles.len() / 2], angles[angles.len() - 1]);
         eprintln!(
