@@ -307,11 +307,15 @@ pub fn advance(
             err += (h * E[j]) * *kj;
         }
         let ratio = err.abs().max_element() / rk.atol;
-        // 0.9 ratio^(-1/5), clamped to [0.2, 5]; at the ends no power is needed.
+        // 0.9 ratio^(-1/5), clamped to [0.2, 5]; at the ends no power is needed, nor
+        // where a step already at h_max grows (the factor is then over 1.0001 and the
+        // next step is h_max whatever it is: most steps, in smooth regions).
         let factor = if ratio <= (0.9f64 / 5.0).powi(5) {
             5.0
         } else if ratio >= (0.9f64 / 0.2).powi(5) {
             0.2
+        } else if ratio < 0.59 && h >= rk.h_max {
+            1.0
         } else {
             0.9 * ratio.powf(-0.2)
         };
