@@ -134,7 +134,8 @@ fn maps_are_the_same_for_any_threads_and_budget() {
     let dir = tempfile::tempdir().unwrap();
     let run = solved_ball(dir.path(), 48, 16);
     let mut fields = Vec::new();
-    // 1 GiB keeps the directions in memory; 40 MiB puts them in scratch files.
+    // 1 GiB keeps the directions, u and the labels in memory; 40 MiB puts the
+    // directions in scratch files and reads u and the labels from the run.
     for (threads, mem) in [(1, 1u64 << 30), (2, 1 << 30), (2, 40 << 20)] {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)

@@ -15,11 +15,12 @@ use std::time::Instant;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-use crate::grid::{BlockStore, Compression, GridError, MemBudget, ZarrStore};
+use crate::grid::{BlockStore, Compression, GridError, MemBudget, MemStore, ZarrStore};
 use crate::math::{volume, Idx3};
 use crate::parallel::map_bounded;
 use crate::progress::Progress;
 use crate::run::RunDir;
+use crate::solve::driver::copy_blocks;
 use crate::trace::integrate::StopBall;
 use crate::trace::stage::{Tracer, LINE_BYTES};
 use crate::trace::{Stop, TraceOptions};
@@ -113,17 +114,34 @@ pub fn map(
     let t = Instant::now();
     let (upwind_stats, stops) = match opts.method {
         MapMethod::Upwind => {
+            let held = if in_memory {
+                Directions::bytes(&spec)
+            } else {
+                0
+            };
+            // Blocks are visited more than once, each read with a halo of up to 26
+            // neighbouring chunks: when the direction field is in memory and u and the
+            // labels fit beside it within half the budget, they are read from the
+            // run once, into memory.
+            let copies = spec.num_voxels() * (8 + 1);
+            let cached = in_memory && held + copies <= opts.mem.work_bytes() / 2;
             let workers = opts.mem.workers(
                 "the upwind map (a block of u, labels and directions per worker)",
-                if in_memory {
-                    Directions::bytes(&spec)
-                } else {
-                    0
-                },
+                held + if cached { copies } else { 0 },
                 upwind::worker_bytes(spec.chunk),
                 threads,
             )?;
-            let s = upwind::transport(&u, &labels, &dirs, &ball, workers, progress)?;
+            let s = if cached {
+                let (mu, ml) = (
+                    MemStore::new(spec.clone(), f64::NAN),
+                    MemStore::new(spec.clone(), 0u8),
+                );
+                copy_blocks(&u, &mu, workers)?;
+                copy_blocks(&labels, &ml, workers)?;
+                upwind::transport(&mu, &ml, &dirs, &ball, workers, progress)?
+            } else {
+                upwind::transport(&u, &labels, &dirs, &ball, workers, progress)?
+            };
             (Some(s), None)
         }
         MapMethod::Exact => (
