@@ -131,11 +131,11 @@ impl Inverse {
         let u = run.open_image::<f64>("u")?;
         let edge = spec.chunk.iter().copied().max().unwrap_or(64);
         let halo = 3;
-        let nodes = (edge + 2 * halo as u64 + 2).pow(3);
-        // A tile (16 B per node); building one holds u over it (8 B per node) and the
-        // chunks the region is assembled from.
-        let tile_bytes = nodes * 16;
-        let build = nodes * 8 + 8 * crate::math::volume(spec.chunk) * 8;
+        let side = [(edge + 2 * halo as u64) as usize; 3];
+        // A tile; building one holds u over it with the margin, the boundary's
+        // corrections, and the chunks the region is assembled from.
+        let tile_bytes = Tile::bytes(side);
+        let build = Tile::build_bytes(side) + 8 * crate::math::volume(spec.chunk) * 8;
         let threads = rayon::current_num_threads() as u64;
         let avail = mem.work_bytes().saturating_sub(threads * build);
         let cap = avail / tile_bytes;

@@ -119,7 +119,7 @@ pub fn map(
             } else {
                 0
             };
-            // Blocks are visited more than once, each read with a halo of up to 26
+            // Blocks are visited more than once, each read with a halo from the
             // neighbouring chunks: when the direction field is in memory and u and the
             // labels fit beside it within half the budget, they are read from the
             // run once, into memory.

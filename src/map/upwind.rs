@@ -146,10 +146,15 @@ pub struct TransportStats {
 #[must_use]
 pub fn worker_bytes(chunk: Idx3) -> u64 {
     let h = volume(chunk.map(|c| c + 2 * HALO));
-    let wide = volume(chunk.map(|c| c + 2 * (HALO + SURFACE_REACH as u64)));
-    // u (f64), labels (u8), three f32 components, the visiting order and the output;
-    // the direction tile (four f32), the u it is built from and its corrected copy.
-    h * (8 + 1 + 12) + volume(chunk) * (12 + 32) + h * (16 + 8) + wide * 8
+    let tile = chunk.map(|c| (c + 2 * HALO - 2) as usize);
+    // u (f64), labels (u8), three f32 components, the visiting order (40 B per voxel
+    // of the block and its first layer of halo) and the output; the direction tile and
+    // what building it holds (u with the tile's margin, read once for both).
+    h * (8 + 1 + 12)
+        + volume(chunk.map(|c| c + 2 * REACH as u64)) * 40
+        + volume(chunk) * 12
+        + Tile::bytes(tile)
+        + Tile::build_bytes(tile)
 }
 
 /// Transport the arrival direction into `dirs` for every target voxel.

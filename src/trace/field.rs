@@ -7,9 +7,11 @@
 //! field. At a node it is grad(u)/|grad(u)| for u = 1 - phi (central differences of the
 //! f64 u, one-sided where a neighbour has no value), so -grad(phi) whatever its size:
 //! down a thin arm |grad(phi)| falls to 1e-22 and below, which a stored gradient would
-//! flush to zero but a unit vector keeps. A node's direction depends only on u at the
-//! node and its six neighbours, so every tile that holds a node holds the same value,
-//! and a streamline does not depend on the tiling.
+//! flush to zero but a unit vector keeps. The differences read the boundary nodes'
+//! sub-voxel values, and exterior nodes next to the solid take the smoothed surface's
+//! normal ([`super::surface`]). A node's direction depends only on u within
+//! [`U_MARGIN`] nodes of it, so every tile that holds a node holds the same value, and a
+//! streamline does not depend on the tiling.
 
 use glam::{DVec3, Vec4};
 
@@ -105,12 +107,11 @@ impl Tile {
                     // cell with the solid (as the corners of the cells that surface
                     // seeds start in do) goes along the smoothed surface's inward
                     // normal instead. Nodes come in increasing offset, as the normals.
-                    while normals.next_if(|n| n.0 < o).is_some() {}
-                    if let Some((_, inward)) = normals.next_if(|n| n.0 == o) {
-                        g = *inward;
-                        n = 1.0;
-                    }
-                    let d = if n > 0.0 && n.is_finite() {
+                    while normals.next_if(|n| (n.0 as usize) < o).is_some() {}
+                    let inward = normals.next_if(|n| n.0 as usize == o).map(|n| n.1);
+                    let d = if let Some(inward) = inward {
+                        inward
+                    } else if n > 0.0 && n.is_finite() {
                         g.map(|c| (c / n) as f32)
                     } else {
                         [0.0; 3]
@@ -135,6 +136,14 @@ impl Tile {
     #[must_use]
     pub fn bytes(shape: [usize; 3]) -> u64 {
         (shape[0] * shape[1] * shape[2] * std::mem::size_of::<[f32; 4]>()) as u64
+    }
+
+    /// Bytes building a tile of `shape` nodes holds besides the tile: the u block with
+    /// its margin and what [`surface::corrections`] holds.
+    #[must_use]
+    pub fn build_bytes(shape: [usize; 3]) -> u64 {
+        let b = shape.map(|s| (s + 2 * U_MARGIN) as u64);
+        b[0] * b[1] * b[2] * 8 + surface::bytes(shape)
     }
 
     /// The local index of the cell of `p` (voxel coordinates x, y, z) if the tile holds
@@ -331,7 +340,8 @@ mod tests {
         u
     }
 
-    /// u linear in x, y and z: every node direction is the normalized gradient.
+    /// u linear in x, y and z and positive (no boundary, no exterior): every node
+    /// direction is the normalized gradient.
     #[test]
     fn linear_u_has_its_exact_direction() {
         let n = 8usize;

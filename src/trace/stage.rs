@@ -330,19 +330,26 @@ impl Tracer {
             ));
         }
         let halo = Tiling::halo_for(&rk);
-        let (tile_bytes, chunk_bytes) = footprint(edge, halo, u.spec());
+        let (tile_bytes, build_bytes, chunk_bytes) = footprint(edge, halo, u.spec());
         let line_bytes = lines * LINE_BYTES;
         let threads = rayon::current_num_threads() as u64;
-        let work = opts.mem.work_bytes().saturating_sub(line_bytes);
+        // Every thread may be building a tile at once.
+        let work = opts
+            .mem
+            .work_bytes()
+            .saturating_sub(line_bytes + threads * build_bytes);
         // At least one tile per thread plus a chunk per tile's neighbourhood.
         let need = threads * tile_bytes + 8 * chunk_bytes;
         if work < need {
             return Err(crate::grid::GridError::Budget {
                 budget: opts.mem.to_string(),
                 what: "tracing (tiles of node gradients and phi chunks)".into(),
-                needed: crate::grid::human(need + crate::grid::BASE_BYTES + line_bytes),
+                needed: crate::grid::human(
+                    need + crate::grid::BASE_BYTES + line_bytes + threads * build_bytes,
+                ),
                 suggest: crate::grid::human(
-                    (need + crate::grid::BASE_BYTES + line_bytes).next_power_of_two(),
+                    (need + crate::grid::BASE_BYTES + line_bytes + threads * build_bytes)
+                        .next_power_of_two(),
                 ),
             }
             .into());

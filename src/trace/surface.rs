@@ -27,7 +27,7 @@ use std::sync::OnceLock;
 use crate::grid::Block;
 
 /// Width (voxels) of the Gaussian that smooths the solid indicator.
-pub const SIGMA: f64 = 2.0;
+const SIGMA: f64 = 2.0;
 /// Below this |grad s| the smoothed surface has no normal (a thin sheet's midplane).
 const MIN_GRADIENT: f64 = 1e-3;
 /// Radius (voxels) of the kernel: 3 sigma.
@@ -131,7 +131,20 @@ pub struct Corrections {
     pub u: Block<f64>,
     /// The unit inward normal (x, y, z) at each node of the box outside the solid that
     /// shares a cell with it, by offset into `u`, in increasing offset.
-    pub normals: Vec<(usize, [f64; 3])>,
+    pub normals: Vec<(u32, [f32; 3])>,
+}
+
+/// Bytes [`corrections`] holds at most for a box of `shape` nodes, besides its input:
+/// the corrected copy, the bit rows, and one query and one normal per node.
+#[must_use]
+pub fn bytes(shape: [usize; 3]) -> u64 {
+    let c: [usize; 3] = shape.map(|s| s + 2);
+    let b: [usize; 3] = shape.map(|s| s + 2 * (REACH + 1));
+    let nodes = (c[0] * c[1] * c[2]) as u64;
+    let bits = (b[0] * b[1] * (b[2].div_ceil(64) + 1) * 8) as u64;
+    let query = std::mem::size_of::<([u16; 3], Query)>() as u64;
+    let normal = std::mem::size_of::<(u32, [f32; 3])>() as u64;
+    nodes * (8 + query + normal) + bits
 }
 
 /// The kinds of node the smoothed surface is evaluated at.
@@ -155,7 +168,8 @@ pub fn corrections(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Corre
     let [_, sy, sx] = u.shape;
     let strides = [sy * sx, sx, 1];
     // The nodes to evaluate, as local indices of `u` (z, y, x).
-    let mut queries: Vec<([usize; 3], Query)> = Vec::new();
+    // Local indices fit in u16: a block is far smaller than 65536 nodes a side.
+    let mut queries: Vec<([u16; 3], Query)> = Vec::new();
     for z in 0..inner[0] {
         for y in 0..inner[1] {
             let src = u.offset(z + REACH, y + REACH, REACH);
@@ -170,7 +184,7 @@ pub fn corrections(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Corre
                         .iter()
                         .any(|&s| !solid(u.data[o - s]) || !solid(u.data[o + s]));
                     if open {
-                        queries.push((l, Query::Boundary));
+                        queries.push((l.map(|c| c as u16), Query::Boundary));
                     }
                 } else if v < 0.0 {
                     // Only the box itself needs directions.
@@ -185,7 +199,7 @@ pub fn corrections(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Corre
                         })
                     };
                     if in_box && shares_a_cell() {
-                        queries.push((l, Query::Outside));
+                        queries.push((l.map(|c| c as u16), Query::Outside));
                     }
                 }
             }
@@ -200,6 +214,7 @@ pub fn corrections(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Corre
     queries.sort_unstable_by_key(|(l, _)| (l[1], l[2], l[0]));
     let mut column = Column::default();
     for &(l, kind) in &queries {
+        let l = l.map(usize::from);
         let (s, g) = column.smoothed(&bits, l);
         let o = out.offset(l[0] - REACH, l[1] - REACH, l[2] - REACH);
         let norm = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
@@ -212,7 +227,9 @@ pub fn corrections(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Corre
                     out.data[o] = v;
                 }
             }
-            Query::Outside => normals.push((o, g.map(|c| c / norm))),
+            // The tile stores directions in f32: (c / norm) as f32 is what it would
+            // compute from the f64 normal.
+            Query::Outside => normals.push((o as u32, g.map(|c| (c / norm) as f32))),
         }
     }
     normals.sort_unstable_by_key(|n| n.0);
@@ -286,8 +303,8 @@ fn boundary_value(u: &Block<f64>, l: [usize; 3], s: f64, g: [f64; 3], norm: f64)
 
 /// [`corrections`]`(..).u`: u over the box and one more node, with the boundary nodes'
 /// sub-voxel values.
-#[must_use]
-pub fn corrected(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Block<f64> {
+#[cfg(test)]
+fn corrected(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Block<f64> {
     corrections(u, origin, shape).u
 }
 
@@ -400,7 +417,7 @@ mod tests {
         let (n, r, c) = (48usize, 15.0, 23.0);
         let m = REACH as i64 + 1;
         let u = ball(n, -m, c - m as f64, r);
-        let whole = corrected(&u, [0; 3], [n - 2 * m as usize; 3]);
+        let whole = corrections(&u, [0; 3], [n - 2 * m as usize; 3]);
         let sub_origin = [5i64, 9, 3];
         let sub_shape = [20usize, 17, 25];
         let mut part = Block::filled(
@@ -421,20 +438,95 @@ mod tests {
                 }
             }
         }
-        let sub = corrected(&part, sub_origin, sub_shape);
-        for z in 0..sub.shape[0] {
-            for y in 0..sub.shape[1] {
-                for x in 0..sub.shape[2] {
+        let sub = corrections(&part, sub_origin, sub_shape);
+        let global = |b: &Block<f64>, o: usize| {
+            let [sy, sx] = [b.shape[1], b.shape[2]];
+            let l = [o / (sy * sx), o / sx % sy, o % sx];
+            std::array::from_fn::<i64, 3, _>(|a| b.origin[a] + l[a] as i64)
+        };
+        for z in 0..sub.u.shape[0] {
+            for y in 0..sub.u.shape[1] {
+                for x in 0..sub.u.shape[2] {
                     let g = [z, y, x].map(|v| v as i64);
-                    let w = whole.data[whole.offset(
-                        (g[0] + sub.origin[0] - whole.origin[0]) as usize,
-                        (g[1] + sub.origin[1] - whole.origin[1]) as usize,
-                        (g[2] + sub.origin[2] - whole.origin[2]) as usize,
+                    let w = whole.u.data[whole.u.offset(
+                        (g[0] + sub.u.origin[0] - whole.u.origin[0]) as usize,
+                        (g[1] + sub.u.origin[1] - whole.u.origin[1]) as usize,
+                        (g[2] + sub.u.origin[2] - whole.u.origin[2]) as usize,
                     )];
-                    assert_eq!(sub.data[sub.offset(z, y, x)].to_bits(), w.to_bits());
+                    assert_eq!(sub.u.data[sub.u.offset(z, y, x)].to_bits(), w.to_bits());
                 }
             }
         }
+        // The normals of the nodes of the small box, as the whole box has them.
+        let inside = |g: [i64; 3]| {
+            (0..3).all(|a| g[a] >= sub_origin[a] && g[a] < sub_origin[a] + sub_shape[a] as i64)
+        };
+        let of = |c: &Corrections| -> Vec<([i64; 3], [u32; 3])> {
+            c.normals
+                .iter()
+                .map(|&(o, n)| (global(&c.u, o as usize), n.map(f32::to_bits)))
+                .filter(|(g, _)| inside(*g))
+                .collect()
+        };
+        let (a, b) = (of(&sub), of(&whole));
+        assert!(a.len() > 100, "{} normals in the small box", a.len());
+        assert_eq!(a, b);
+    }
+
+    /// The column sums give the Gaussian's direct sum, also where a window straddles two
+    /// words of a bit row (blocks wider than 64 nodes).
+    #[test]
+    fn smoothed_sums_match_a_direct_sum_across_words() {
+        let shape = [16usize, 16, 150];
+        let mut u = Block::filled([0; 3], shape, f64::NAN);
+        for z in 0..shape[0] {
+            for y in 0..shape[1] {
+                for x in 0..shape[2] {
+                    // An irregular solid: a wavy slab and scattered nodes.
+                    let wave = 8.0 + 3.0 * (x as f64 * 0.3).sin() + 2.0 * (y as f64 * 0.5).cos();
+                    let speck = (x * 7 + y * 13 + z * 29) % 11 == 0;
+                    let o = u.offset(z, y, x);
+                    u.data[o] = if (z as f64) < wave || speck {
+                        0.5
+                    } else {
+                        -1e-4
+                    };
+                }
+            }
+        }
+        let bits = Bits::of(&u);
+        let k = kernel();
+        let mut column = Column::default();
+        let mut checked = 0;
+        for y in [RADIUS, RADIUS + 2] {
+            for x in (RADIUS..shape[2] - RADIUS).step_by(3) {
+                for z in RADIUS..shape[0] - RADIUS {
+                    let (s, g) = column.smoothed(&bits, [z, y, x]);
+                    let (mut ds, mut dg) = (0.0, [0.0; 3]);
+                    for i in 0..WIDTH {
+                        for j in 0..WIDTH {
+                            for l in 0..WIDTH {
+                                let v = u.data
+                                    [u.offset(z + i - RADIUS, y + j - RADIUS, x + l - RADIUS)];
+                                if !solid(v) {
+                                    continue;
+                                }
+                                ds += k.k[i] * k.k[j] * k.k[l];
+                                dg[0] += k.k[i] * k.k[j] * k.dk[l];
+                                dg[1] += k.k[i] * k.dk[j] * k.k[l];
+                                dg[2] += k.dk[i] * k.k[j] * k.k[l];
+                            }
+                        }
+                    }
+                    assert!((s - ds).abs() < 1e-12, "s at {z} {y} {x}: {s} vs {ds}");
+                    for a in 0..3 {
+                        assert!((g[a] - dg[a]).abs() < 1e-12, "grad s at {z} {y} {x}");
+                    }
+                    checked += 1;
+                }
+            }
+        }
+        assert!(checked > 100);
     }
 
     /// Outside the staircase of a ball, the smoothed surface's inward normal points at
@@ -447,6 +539,7 @@ mod tests {
         let out = corrections(&u, [0; 3], [n - 2 * m; 3]);
         let mut angles = Vec::new();
         for &(o, g) in &out.normals {
+            let (o, g) = (o as usize, g.map(f64::from));
             let [sy, sx] = [out.u.shape[1], out.u.shape[2]];
             let l = [o / (sy * sx), o / sx % sy, o % sx];
             assert!(out.u.data[o] < 0.0, "normals only outside the solid");

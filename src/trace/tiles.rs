@@ -374,12 +374,11 @@ pub fn trace_tiled(
     Ok((out, paths, stats))
 }
 
-/// Bytes one tile of edge `edge` with `halo` takes, and one decoded chunk of `spec`.
+/// Bytes one tile of edge `edge` with `halo` takes in the cache, the most building one
+/// holds besides (the u it is read from and the boundary's corrections), and one decoded
+/// chunk of `spec`.
 #[must_use]
-pub fn footprint(edge: u64, halo: i64, spec: &GridSpec) -> (u64, u64) {
-    let s = (edge as i64 + 2 * halo) as usize;
-    // The u box a tile is built from, and the copy with the boundary nodes' values.
-    let (b, c) = (s + 2 * U_MARGIN, s + 2);
-    let phi_box = ((b * b * b + c * c * c) * 8) as u64;
-    (Tile::bytes([s; 3]) + phi_box, volume(spec.chunk) * 8)
+pub fn footprint(edge: u64, halo: i64, spec: &GridSpec) -> (u64, u64, u64) {
+    let s = [(edge as i64 + 2 * halo) as usize; 3];
+    (Tile::bytes(s), Tile::build_bytes(s), volume(spec.chunk) * 8)
 }
