@@ -72,6 +72,17 @@ impl Tile {
                         nodes.push(Vec4::new(0.0, 0.0, 0.0, f32::NAN));
                         continue;
                     }
+                    let stored = u.data[u.offset(z + U_MARGIN, y + U_MARGIN, x + U_MARGIN)] as f32;
+                    // On the exterior layers (where phi only keeps streamlines in),
+                    // the staircase would point along the axes: a node that shares a
+                    // cell with the solid (as the corners of the cells that surface
+                    // seeds start in do) goes along the smoothed surface's inward
+                    // normal instead. Nodes come in increasing offset, as the normals.
+                    while normals.next_if(|n| (n.0 as usize) < o).is_some() {}
+                    if let Some((_, d)) = normals.next_if(|n| n.0 as usize == o) {
+                        nodes.push(Vec4::new(d[0], d[1], d[2], stored));
+                        continue;
+                    }
                     let mut g = [0.0f64; 3];
                     // Axis a of the gradient (x, y, z) is array axis 2 - a.
                     for (a, ga) in g.iter_mut().enumerate() {
@@ -102,26 +113,12 @@ impl Tile {
                         g = steepest.1;
                         n = 1.0;
                     }
-                    // On the exterior layers (where phi only keeps streamlines in),
-                    // the staircase would point along the axes: a node that shares a
-                    // cell with the solid (as the corners of the cells that surface
-                    // seeds start in do) goes along the smoothed surface's inward
-                    // normal instead. Nodes come in increasing offset, as the normals.
-                    while normals.next_if(|n| (n.0 as usize) < o).is_some() {}
-                    let inward = normals.next_if(|n| n.0 as usize == o).map(|n| n.1);
-                    let d = if let Some(inward) = inward {
-                        inward
-                    } else if n > 0.0 && n.is_finite() {
+                    let d = if n > 0.0 && n.is_finite() {
                         g.map(|c| (c / n) as f32)
                     } else {
                         [0.0; 3]
                     };
-                    nodes.push(Vec4::new(
-                        d[0],
-                        d[1],
-                        d[2],
-                        u.data[u.offset(z + U_MARGIN, y + U_MARGIN, x + U_MARGIN)] as f32,
-                    ));
+                    nodes.push(Vec4::new(d[0], d[1], d[2], stored));
                 }
             }
         }
