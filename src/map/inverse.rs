@@ -19,7 +19,7 @@ use glam::DVec3;
 
 use crate::grid::{BlockStore, GridError, MemBudget};
 use crate::run::RunDir;
-use crate::trace::field::{Tile, U_MARGIN};
+use crate::trace::field::Tile;
 use crate::trace::integrate::StopBall;
 
 /// Step of the uphill integration (voxels).
@@ -62,12 +62,8 @@ impl Tiles {
             let hi = ((t[a] + 1) * self.edge).min(self.grid[a]) as i64 + self.halo;
             (hi - origin[a]) as usize
         });
-        let m = U_MARGIN;
-        let block = self.u.read_region(
-            origin.map(|o| o - m as i64),
-            shape.map(|s| s + 2 * m),
-            f64::NAN,
-        )?;
+        let (u_origin, u_shape) = Tile::u_box(origin, shape);
+        let block = self.u.read_region(u_origin, u_shape, f64::NAN)?;
         let tile = Arc::new(Tile::from_u(&block, origin, shape));
         self.cache.lock().expect("lock").put(k, tile.clone());
         Ok(tile)

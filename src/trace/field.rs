@@ -55,8 +55,7 @@ impl Tile {
     /// ([`super::surface`]); the u the tile keeps is the stored one.
     #[must_use]
     pub fn from_u(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Self {
-        debug_assert!((0..3).all(|a| u.origin[a] == origin[a] - U_MARGIN as i64));
-        debug_assert!((0..3).all(|a| u.shape[a] == shape[a] + 2 * U_MARGIN));
+        debug_assert!((u.origin, u.shape) == Self::u_box(origin, shape));
         let corr = surface::corrections(u, origin, shape);
         let phi = &corr.u;
         let mut normals = corr.normals.iter().peekable();
@@ -129,6 +128,16 @@ impl Tile {
         }
     }
 
+    /// The box of u a tile of `shape` nodes from `origin` is built from: [`U_MARGIN`]
+    /// more nodes on every side.
+    #[must_use]
+    pub fn u_box(origin: [i64; 3], shape: [usize; 3]) -> ([i64; 3], [usize; 3]) {
+        (
+            origin.map(|o| o - U_MARGIN as i64),
+            shape.map(|s| s + 2 * U_MARGIN),
+        )
+    }
+
     /// Bytes a tile of `shape` nodes holds.
     #[must_use]
     pub fn bytes(shape: [usize; 3]) -> u64 {
@@ -139,8 +148,8 @@ impl Tile {
     /// its margin and what [`surface::corrections`] holds.
     #[must_use]
     pub fn build_bytes(shape: [usize; 3]) -> u64 {
-        let b = shape.map(|s| (s + 2 * U_MARGIN) as u64);
-        b[0] * b[1] * b[2] * 8 + surface::bytes(shape)
+        let (_, b) = Self::u_box([0; 3], shape);
+        (b[0] * b[1] * b[2] * 8) as u64 + surface::bytes(shape)
     }
 
     /// The local index of the cell of `p` (voxel coordinates x, y, z) if the tile holds

@@ -192,10 +192,12 @@ pub fn corrections(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Corre
                         .iter()
                         .zip(&inner)
                         .all(|(&c, &n)| c > 0 && c + 1 < n);
+                    // The 3 x 3 x 3 nodes from `corner`: all the nodes its cells have.
+                    let corner = o - strides[0] - strides[1] - 1;
                     let shares_a_cell = || {
                         (0..27).any(|k| {
-                            let q = o + (k / 9) * strides[0] + (k / 3 % 3) * strides[1] + k % 3;
-                            solid(u.data[q - strides[0] - strides[1] - 1])
+                            let d = (k / 9) * strides[0] + (k / 3 % 3) * strides[1] + k % 3;
+                            solid(u.data[corner + d])
                         })
                     };
                     if in_box && shares_a_cell() {

@@ -9,7 +9,7 @@ use std::sync::{Arc, Mutex};
 use glam::DVec3;
 use rayon::prelude::*;
 
-use super::field::{Tile, U_MARGIN};
+use super::field::Tile;
 use super::integrate::{advance, Advance, Line, Rk45, Stop, StopBall};
 use crate::grid::{copy_overlap, to_usize, Block, BlockStore, GridError, GridSpec};
 use crate::math::{volume, Idx3};
@@ -283,8 +283,8 @@ pub fn trace_tiled(
             .with_max_len(1)
             .map(|&k| {
                 let (origin, shape) = tiling.node_box(k);
-                let m = U_MARGIN;
-                let phi = chunks.region(origin.map(|c| c - m as i64), shape.map(|c| c + 2 * m))?;
+                let (u_origin, u_shape) = Tile::u_box(origin, shape);
+                let phi = chunks.region(u_origin, u_shape)?;
                 Ok((k, Arc::new(Tile::from_u(&phi, origin, shape))))
             })
             .collect::<Result<_, GridError>>()?;
