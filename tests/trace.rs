@@ -365,3 +365,63 @@ fn a_sphere_maps_onto_the_sphere_without_flips_and_exports_whole_files() {
         .collect();
     assert!(left.is_empty(), "{left:?}");
 }
+
+/// The integrator's flags: a looser tolerance, absolute or per voxel of step, takes
+/// fewer steps and still brings every ball seed in along its own direction; settings
+/// that cannot work are refused with exit code 2, naming the flags, and leave the last
+/// table as it was.
+#[test]
+fn integrator_flags_trade_steps_for_accuracy_and_bad_ones_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = solved_ball(dir.path(), 48, 16);
+    let r = run.to_str().unwrap();
+    let traced = |extra: &[&str]| {
+        let mut args = vec!["-q", "trace", r];
+        args.extend_from_slice(extra);
+        ok(&harmap(&args));
+        let t = read_seeds(&RunDir::open(&run).unwrap()).unwrap();
+        assert!(
+            t.stop.iter().all(|&s| s == 0),
+            "{extra:?}: all reach the center"
+        );
+        let e = radial_errors(&run, &t);
+        let steps = t.steps.iter().map(|&s| f64::from(s)).sum::<f64>() / t.steps.len() as f64;
+        (steps, e[e.len() - 1], t)
+    };
+    let (strict, strict_max, _) = traced(&[]);
+    let (loose, loose_max, _) = traced(&["--atol", "1e-4"]);
+    let (relative, relative_max, table) = traced(&["--rtol", "1e-4"]);
+    eprintln!(
+        "steps {strict:.1} / {loose:.1} / {relative:.1}, max error {strict_max:.3} / \
+         {loose_max:.3} / {relative_max:.3} degrees"
+    );
+    assert!(loose < 0.9 * strict, "{loose} vs {strict} steps");
+    assert!(relative < 0.9 * strict, "{relative} vs {strict} steps");
+    // The field, not the integration, sets the error here (0.46 degrees at N = 48).
+    assert!(
+        loose_max < 0.6 && relative_max < 0.6,
+        "{loose_max} {relative_max}"
+    );
+
+    for (args, expect) in [
+        (&["--atol", "0"][..], "--atol 0 --rtol 0"),
+        (&["--h-max", "20"][..], "--h-max 20"),
+        (
+            &["--h-min", "1", "--h-max", "0.5"][..],
+            "--h-min 1 --h-max 0.5",
+        ),
+        (&["--max-steps", "0"][..], "--max-steps 0"),
+    ] {
+        let mut a = vec!["trace", r];
+        a.extend_from_slice(args);
+        let o = harmap(&a);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(expect), "{args:?}: {err}");
+    }
+    let after = read_seeds(&RunDir::open(&run).unwrap()).unwrap();
+    assert!(
+        same_table(&table, &after),
+        "a refused trace changed the table"
+    );
+}

@@ -15,6 +15,11 @@ use super::field::{NoDirection, Tile};
 pub struct Rk45 {
     /// Local error allowed per step (voxels).
     pub atol: f64,
+    /// Local error allowed per voxel of step: a step of h voxels may err by
+    /// `atol + rtol * h` voxels. (Positions have no natural scale, so the relative
+    /// tolerance is to the step's length, not to the coordinates.)
+    #[serde(default)]
+    pub rtol: f64,
     /// Smallest step; a streamline that needs a smaller one stops.
     pub h_min: f64,
     /// Largest step.
@@ -27,6 +32,7 @@ impl Default for Rk45 {
     fn default() -> Self {
         Self {
             atol: 1e-6,
+            rtol: 0.0,
             h_min: 1e-6,
             h_max: 2.0,
             max_steps: 20_000,
@@ -34,7 +40,41 @@ impl Default for Rk45 {
     }
 }
 
+/// The largest `h_max` allowed: a tile holds 1.5 h_max + 2 nodes of halo.
+pub const MAX_H_MAX: f64 = 16.0;
+
 impl Rk45 {
+    /// Why these settings cannot work (naming the `harmap trace` flags), if they cannot.
+    #[must_use]
+    pub fn problem(&self) -> Option<String> {
+        let finite = [self.atol, self.rtol, self.h_min, self.h_max]
+            .iter()
+            .all(|v| v.is_finite());
+        if !finite || self.atol < 0.0 || self.rtol < 0.0 || self.atol + self.rtol <= 0.0 {
+            return Some(format!(
+                "--atol {} --rtol {}: give tolerances that are zero or more, not both zero",
+                self.atol, self.rtol
+            ));
+        }
+        if !(self.h_min > 0.0 && self.h_min <= self.h_max && self.h_max <= MAX_H_MAX) {
+            return Some(format!(
+                "--h-min {} --h-max {}: give 0 < h-min <= h-max <= {MAX_H_MAX} voxels",
+                self.h_min, self.h_max
+            ));
+        }
+        if self.max_steps == 0 {
+            return Some("--max-steps 0: allow at least one step".into());
+        }
+        None
+    }
+
+    /// The error a step of length `h` may make.
+    #[inline]
+    #[must_use]
+    pub fn tolerance(&self, h: f64) -> f64 {
+        self.atol + self.rtol * h
+    }
+
     /// How far (voxels, per axis) from a step's start its stage points may lie: steps
     /// whose stages stray farther are rejected, so a tile needs this many nodes of halo
     /// (plus one for the cell) around the points it owns.
@@ -306,7 +346,7 @@ pub fn advance(
         for (j, kj) in k.iter().enumerate() {
             err += (h * E[j]) * *kj;
         }
-        let ratio = err.abs().max_element() / rk.atol;
+        let ratio = err.abs().max_element() / rk.tolerance(h);
         // 0.9 ratio^(-1/5), clamped to [0.2, 5]; at the ends no power is needed, nor
         // where a step already at h_max grows (the factor is then over 1.0001 and the
         // next step is h_max whatever it is: most steps, in smooth regions).

@@ -317,8 +317,8 @@ impl Tracer {
         let spec = run.grid()?;
         let u = run.open_image::<f64>("u")?;
         let rk = opts.rk;
-        if !(rk.h_min > 0.0 && rk.h_max >= rk.h_min && rk.atol > 0.0) {
-            return Err(options(format!("integrator settings cannot work: {rk:?}")));
+        if let Some(why) = rk.problem() {
+            return Err(options(why));
         }
         let ball = stop_ball(&attrs, &spec, opts.stop_radius, run.root())?;
         let edge = opts

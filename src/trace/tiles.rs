@@ -10,7 +10,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 use super::field::Tile;
-use super::integrate::{advance, Advance, Line, Rk45, Stop, StopBall};
+use super::integrate::{advance, Advance, Line, Rk45, Stop, StopBall, ESCAPE_RADIUS};
 use crate::grid::{copy_overlap, to_usize, Block, BlockStore, GridError, GridSpec};
 use crate::math::{volume, Idx3};
 use crate::progress::Progress;
@@ -44,10 +44,11 @@ pub struct Tiling {
 }
 
 impl Tiling {
-    /// Halo needed by the integrator `rk`: its reach, plus one node for the cell.
+    /// Halo needed by the integrator `rk`: its reach, plus one node for the cell, and
+    /// at least the nodes an escape from a flat sheet looks at.
     #[must_use]
     pub fn halo_for(rk: &Rk45) -> i64 {
-        rk.reach().ceil() as i64 + 2
+        (rk.reach().ceil() as i64 + 2).max(ESCAPE_RADIUS + 2)
     }
 
     fn tiles(&self) -> Idx3 {
