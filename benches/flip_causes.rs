@@ -30,6 +30,7 @@ use harmap::progress::Silent;
 use harmap::run::RunDir;
 use harmap::trace::field::Tile;
 use harmap::trace::integrate::Rk45;
+use harmap::trace::metrics::singular_values;
 use harmap::trace::seeds::SeedKind;
 use harmap::trace::stage::{trace_seeds, TraceOptions, Tracer};
 
@@ -82,10 +83,7 @@ fn report(run: &RunDir, name: &str, rk: Rk45) -> Result<(), harmap::Error> {
             let (j1, j2) = ((q[i + 1] - q[i]) / D, (q[i + 2] - q[i]) / D);
             let n = j1.cross(j2);
             negative |= n.dot(q[i]) < 0.0;
-            let f2 = j1.length_squared() + j2.length_squared();
-            let disc = (f2 * f2 - 4.0 * n.length_squared()).max(0.0).sqrt();
-            let s1 = f64::midpoint(f2, disc).sqrt();
-            let s2 = ((f2 - disc) / 2.0).max(0.0).sqrt();
+            let (s1, s2) = singular_values(j1.length_squared() + j2.length_squared(), n.length());
             ratios.push(s2 / s1);
         }
         folded += usize::from(negative);

@@ -9,6 +9,16 @@ pub type Vec3 = glam::DVec3;
 /// A voxel or block index `[z, y, x]`.
 pub type Idx3 = [u64; 3];
 
+/// The trilinear weight of the cell corner `corner` (0 or 1 per axis) for a point at
+/// fractions `t` of its cell, in the same axis order: the product, first axis first.
+#[inline]
+#[must_use]
+pub fn corner_weight(t: [f64; 3], corner: [usize; 3]) -> f64 {
+    (0..3)
+        .map(|a| if corner[a] == 1 { t[a] } else { 1.0 - t[a] })
+        .product()
+}
+
 /// Product of the three extents, as `u64`.
 #[must_use]
 pub fn volume(shape: Idx3) -> u64 {

@@ -349,7 +349,7 @@ fn visit(
     let local = |i: usize| [i / (hs[1] * hs[2]), i / hs[2] % hs[1], i % hs[2]];
     // What voxel `t` gets from the directions known so far.
     let eval = |d: &[Vec<f32>; 3], t: &u128, fill: bool| -> Upwind {
-        let i = *t as u64 as usize;
+        let i = index(*t);
         let (ux, local) = (ub.data[i], local(i));
         let g: [f64; 3] =
             std::array::from_fn(|a| start[2 - a] as f64 + local[2 - a] as f64 - h as f64);
@@ -372,7 +372,7 @@ fn visit(
     };
     let mut changed = false;
     let mut apply = |d: &mut [Vec<f32>; 3], t: &u128, value: Upwind| {
-        let i = *t as u64 as usize;
+        let i = index(*t);
         let local = local(i);
         let own = core(local);
         let (dir, filled) = match value {
@@ -523,9 +523,7 @@ impl Region<'_> {
         let mut wsum = 0.0;
         for k in 0..8 {
             let o = [k >> 2, (k >> 1) & 1, k & 1];
-            let w: f64 = (0..3)
-                .map(|a| if o[a] == 1 { t[a] } else { 1.0 - t[a] })
-                .product();
+            let w = crate::math::corner_weight(t, o);
             let n = ((l[0] + o[0]) * self.hs[1] + l[1] + o[1]) * self.hs[2] + l[2] + o[2];
             if w == 0.0 || !is_target(self.lab[n]) {
                 continue;
@@ -551,6 +549,11 @@ impl Region<'_> {
 /// increasing index; the low 64 bits are `i`.
 fn pack(u: f64, i: usize) -> u128 {
     (u128::from(!ordered(u)) << 64) | i as u128
+}
+
+/// The voxel index a [`pack`]ed key holds.
+fn index(key: u128) -> usize {
+    key as u64 as usize
 }
 
 /// A u64 whose order is the order of the f64 `x` (total order, as `f64::total_cmp`).

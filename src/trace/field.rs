@@ -57,24 +57,22 @@ impl Tile {
     pub fn from_u(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Self {
         debug_assert!((u.origin, u.shape) == Self::u_box(origin, shape));
         let corr = surface::corrections(u, origin, shape);
-        let phi = &corr.u;
-        let [_, sy, sx] = phi.shape;
+        // u with the boundary nodes' sub-voxel values, one node beyond the tile.
+        let cu = &corr.u;
+        let [_, sy, sx] = cu.shape;
         let nx = shape[2];
         let mut nodes = vec![Vec4::ZERO; shape[0] * shape[1] * nx];
         for z in 0..shape[0] {
             for y in 0..shape[1] {
-                let o = phi.offset(z + 1, y + 1, 1);
+                let o = cu.offset(z + 1, y + 1, 1);
                 let s = u.offset(z + U_MARGIN, y + U_MARGIN, U_MARGIN);
                 let out = &mut nodes[(z * shape[1] + y) * nx..][..nx];
                 row_directions(
                     RowNeighbours {
-                        c: &phi.data[o..][..nx],
-                        x: [&phi.data[o - 1..][..nx], &phi.data[o + 1..][..nx]],
-                        y: [&phi.data[o - sx..][..nx], &phi.data[o + sx..][..nx]],
-                        z: [
-                            &phi.data[o - sy * sx..][..nx],
-                            &phi.data[o + sy * sx..][..nx],
-                        ],
+                        c: &cu.data[o..][..nx],
+                        x: [&cu.data[o - 1..][..nx], &cu.data[o + 1..][..nx]],
+                        y: [&cu.data[o - sx..][..nx], &cu.data[o + sx..][..nx]],
+                        z: [&cu.data[o - sy * sx..][..nx], &cu.data[o + sy * sx..][..nx]],
                     },
                     &u.data[s..][..nx],
                     out,
@@ -84,17 +82,15 @@ impl Tile {
         // On the exterior layers (where phi only keeps streamlines in), the staircase
         // would point along the axes: a node that shares a cell with the solid (as the
         // corners of the cells that surface seeds start in do) goes along the smoothed
-        // surface's inward normal instead.
+        // surface's inward normal instead. corrections() gives normals only at the
+        // tile's own nodes (one inside the corrected box), where u has a value.
         for &(o, d) in &corr.normals {
             let o = o as usize;
             let l = [o / (sy * sx), o / sx % sy, o % sx];
-            if (0..3).any(|a| l[a] == 0 || l[a] > shape[a]) {
-                continue;
-            }
+            debug_assert!((0..3).all(|a| l[a] >= 1 && l[a] <= shape[a]));
             let n = &mut nodes[((l[0] - 1) * shape[1] + l[1] - 1) * nx + l[2] - 1];
-            if !n.w.is_nan() {
-                *n = Vec4::new(d[0], d[1], d[2], n.w);
-            }
+            debug_assert!(!n.w.is_nan());
+            *n = Vec4::new(d[0], d[1], d[2], n.w);
         }
         Self {
             origin,

@@ -134,6 +134,19 @@ fn planar(t: [DVec3; 3]) -> Option<[DVec2; 2]> {
     Some([DVec2::new(e1.dot(u), 0.0), DVec2::new(e2.dot(u), e2.dot(v))])
 }
 
+/// The singular values (largest first) of a map from the plane, given the sum of its
+/// squared entries `f2` (the squared Frobenius norm) and the area it gives a unit square
+/// `det` (|determinant|; for a 3 x 2 Jacobian, the length of its columns' cross
+/// product).
+#[must_use]
+pub fn singular_values(f2: f64, det: f64) -> (f64, f64) {
+    let disc = (f2 * f2 - 4.0 * det * det).max(0.0).sqrt();
+    (
+        f64::midpoint(f2, disc).sqrt(),
+        ((f2 - disc) / 2.0).max(0.0).sqrt(),
+    )
+}
+
 /// sigma_max / sigma_min of the linear map taking triangle `p` to triangle `s`.
 fn conformal_ratio(p: [DVec3; 3], s: [DVec3; 3]) -> f64 {
     let (Some(a), Some(b)) = (planar(p), planar(s)) else {
@@ -143,12 +156,10 @@ fn conformal_ratio(p: [DVec3; 3], s: [DVec3; 3]) -> f64 {
     let am = glam::DMat2::from_cols(a[0], a[1]);
     let bm = glam::DMat2::from_cols(b[0], b[1]);
     let j = bm * am.inverse();
-    // Singular values of a 2x2 matrix from its Frobenius norm and determinant.
-    let f2 = j.x_axis.length_squared() + j.y_axis.length_squared();
-    let det = j.determinant().abs();
-    let disc = (f2 * f2 - 4.0 * det * det).max(0.0).sqrt();
-    let s1 = f64::midpoint(f2, disc).sqrt();
-    let s2 = ((f2 - disc) / 2.0).max(0.0).sqrt();
+    let (s1, s2) = singular_values(
+        j.x_axis.length_squared() + j.y_axis.length_squared(),
+        j.determinant().abs(),
+    );
     if s2 > 0.0 {
         s1 / s2
     } else {

@@ -341,16 +341,12 @@ impl Tracer {
         // At least one tile per thread plus a chunk per tile's neighbourhood.
         let need = threads * tile_bytes + 8 * chunk_bytes;
         if work < need {
+            let total = need + crate::grid::BASE_BYTES + line_bytes + threads * build_bytes;
             return Err(crate::grid::GridError::Budget {
                 budget: opts.mem.to_string(),
                 what: "tracing (tiles of node gradients and phi chunks)".into(),
-                needed: crate::grid::human(
-                    need + crate::grid::BASE_BYTES + line_bytes + threads * build_bytes,
-                ),
-                suggest: crate::grid::human(
-                    (need + crate::grid::BASE_BYTES + line_bytes + threads * build_bytes)
-                        .next_power_of_two(),
-                ),
+                needed: crate::grid::human(total),
+                suggest: crate::grid::human(total.next_power_of_two()),
             }
             .into());
         }
@@ -556,11 +552,7 @@ fn trilinear(b: &crate::grid::Block<f64>, p: DVec3) -> f64 {
                 if v.is_nan() {
                     continue;
                 }
-                let w = [dz, dy, dx]
-                    .iter()
-                    .zip(t)
-                    .map(|(&d, ta)| if d == 1 { ta } else { 1.0 - ta })
-                    .product::<f64>();
+                let w = crate::math::corner_weight(t, [dz, dy, dx].map(|d| d as usize));
                 acc += w * v;
                 wsum += w;
             }

@@ -321,11 +321,7 @@ fn interpolate_solid(u: &Block<f64>, l: [usize; 3], q: [f64; 3]) -> Option<f64> 
     for dz in 0..2 {
         for dy in 0..2 {
             for dx in 0..2 {
-                let w = [dz, dy, dx]
-                    .iter()
-                    .zip(&t)
-                    .map(|(&d, &t)| if d == 1 { t } else { 1.0 - t })
-                    .product::<f64>();
+                let w = crate::math::corner_weight(t, [dz, dy, dx]);
                 let v = u.data[u.offset(c[0] + dz, c[1] + dy, c[2] + dx)];
                 if solid(v) {
                     sum += w * v;

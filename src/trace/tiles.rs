@@ -285,8 +285,8 @@ pub fn trace_tiled(
             .map(|&k| {
                 let (origin, shape) = tiling.node_box(k);
                 let (u_origin, u_shape) = Tile::u_box(origin, shape);
-                let phi = chunks.region(u_origin, u_shape)?;
-                Ok((k, Arc::new(Tile::from_u(&phi, origin, shape))))
+                let u = chunks.region(u_origin, u_shape)?;
+                Ok((k, Arc::new(Tile::from_u(&u, origin, shape))))
             })
             .collect::<Result<_, GridError>>()?;
         stats.tiles_built += built.len() as u64;
