@@ -24,3 +24,11 @@ pub fn corner_weight(t: [f64; 3], corner: [usize; 3]) -> f64 {
 pub fn volume(shape: Idx3) -> u64 {
     shape[0] * shape[1] * shape[2]
 }
+
+/// floor(x) as an integer without a libm call (x finite and well inside i64).
+#[inline]
+#[must_use]
+pub fn floor(x: f64) -> i64 {
+    let i = x as i64;
+    i - i64::from((i as f64) > x)
+}

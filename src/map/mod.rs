@@ -66,7 +66,8 @@ pub struct MapReport {
     /// Streamlines per stop reason (exact method; voxels inside the stop ball count as
     /// reached without a streamline).
     pub stops: Option<std::collections::BTreeMap<&'static str, u64>>,
-    /// Seconds spent computing directions (without writing theta and psi).
+    /// Seconds spent computing directions (upwind: with the theta and psi of the blocks
+    /// written as they are done, that is nearly all of them).
     pub seconds_directions: f64,
 }
 
@@ -112,13 +113,15 @@ pub fn map(
     let in_memory = Directions::bytes(&spec) <= opts.mem.work_bytes() / 2;
     let dirs = Directions::create(&scratch, &spec, in_memory)?;
     let t = Instant::now();
+    let angles = Angles::create(run, &spec)?;
     let (upwind_stats, stops) = match opts.method {
         MapMethod::Upwind => {
-            let held = if in_memory {
-                Directions::bytes(&spec)
-            } else {
-                0
-            };
+            let held = upwind::held_bytes(&spec, &ball)
+                + if in_memory {
+                    Directions::bytes(&spec)
+                } else {
+                    0
+                };
             // Blocks are visited more than once, each read with a halo from the
             // neighbouring chunks: when the direction field is in memory and u and the
             // labels fit beside it within half the budget, they are read from the
@@ -128,9 +131,12 @@ pub fn map(
             let workers = opts.mem.workers(
                 "the upwind map (a block of u, labels and directions per worker)",
                 held + if cached { copies } else { 0 },
-                upwind::worker_bytes(spec.chunk),
+                upwind::worker_bytes(spec.chunk) + Angles::block_bytes(&spec),
                 threads,
             )?;
+            // A block's angles are written as soon as all its voxels have a direction,
+            // while its data is at hand.
+            let sink = |b: Idx3, lab: &[u8], d: &[[f32; 3]]| angles.write(b, lab, |i| d[i]);
             let s = if cached {
                 let (mu, ml) = (
                     MemStore::new(spec.clone(), f64::NAN),
@@ -138,9 +144,9 @@ pub fn map(
                 );
                 copy_blocks(&u, &mu, workers)?;
                 copy_blocks(&labels, &ml, workers)?;
-                upwind::transport(&mu, &ml, &dirs, &ball, workers, progress)?
+                upwind::transport(&mu, &ml, &dirs, &ball, workers, progress, Some(&sink))?
             } else {
-                upwind::transport(&u, &labels, &dirs, &ball, workers, progress)?
+                upwind::transport(&u, &labels, &dirs, &ball, workers, progress, Some(&sink))?
             };
             (Some(s), None)
         }
@@ -150,7 +156,7 @@ pub fn map(
         ),
     };
     let seconds_directions = t.elapsed().as_secs_f64();
-    let (voxels, mapped) = write_angles(run, &labels, &dirs, opts.mem, progress)?;
+    let (voxels, mapped) = angles.finish(run, &labels, &dirs, opts.mem, progress)?;
     let _ = std::fs::remove_dir_all(&scratch);
     let report = MapReport {
         method: opts.method,
@@ -165,58 +171,107 @@ pub fn map(
     Ok(report)
 }
 
-/// theta and psi from the directions, staged and renamed into place.
-fn write_angles(
-    run: &RunDir,
-    labels: &dyn BlockStore<u8>,
-    dirs: &Directions,
-    mem: MemBudget,
-    progress: &dyn Progress,
-) -> Result<(u64, u64), crate::Error> {
-    let spec = labels.spec().clone();
-    let theta: ZarrStore<f32> =
-        run.create_image_staged("theta", &spec, f32::NAN, Compression::Zstd(1))?;
-    let psi: ZarrStore<f32> =
-        run.create_image_staged("psi", &spec, f32::NAN, Compression::Zstd(1))?;
-    let per = volume(spec.chunk) * (1 + 12 + 32 + 8);
-    let workers = mem.workers(
-        "writing theta and psi",
-        0,
-        per,
-        rayon::current_num_threads(),
-    )?;
-    progress.start("map (writing theta, psi)", spec.num_blocks());
-    let counts = map_bounded(
-        &spec.block_indices(),
-        workers,
-        |&b| -> Result<(u64, u64), GridError> {
-            let lab = labels.read_block(b)?;
-            let d = dirs.read(b)?;
-            let mut th = vec![f32::NAN; lab.len()];
-            let mut ps = vec![f32::NAN; lab.len()];
-            let (mut n, mut m) = (0, 0);
-            for i in 0..lab.len() {
-                if !is_target(lab[i]) {
-                    continue;
-                }
-                n += 1;
-                if let Some(v) = d[i] {
-                    let (t, p) = crate::trace::angles(v);
-                    th[i] = t as f32;
-                    ps[i] = p as f32;
-                    m += 1;
-                }
+/// theta and psi, written block by block: during the transport as blocks are done,
+/// then the rest.
+struct Angles {
+    theta: ZarrStore<f32>,
+    psi: ZarrStore<f32>,
+    /// Which blocks are written.
+    written: Vec<std::sync::atomic::AtomicBool>,
+    /// Target voxels and those with a direction, over the written blocks.
+    counts: std::sync::Mutex<(u64, u64)>,
+}
+
+impl Angles {
+    fn create(run: &RunDir, spec: &crate::grid::GridSpec) -> Result<Self, crate::Error> {
+        Ok(Self {
+            theta: run.create_image_staged("theta", spec, f32::NAN, Compression::Zstd(1))?,
+            psi: run.create_image_staged("psi", spec, f32::NAN, Compression::Zstd(1))?,
+            written: (0..spec.num_blocks())
+                .map(|_| std::sync::atomic::AtomicBool::new(false))
+                .collect(),
+            counts: std::sync::Mutex::new((0, 0)),
+        })
+    }
+
+    /// Bytes [`Angles::write`] holds for a block.
+    fn block_bytes(spec: &crate::grid::GridSpec) -> u64 {
+        volume(spec.chunk) * (4 + 4 + 1 + 12)
+    }
+
+    /// Write block `b` from its labels and the direction of each voxel (x, y, z; zero
+    /// where it has none).
+    fn write(&self, b: Idx3, lab: &[u8], d: impl Fn(usize) -> [f32; 3]) -> Result<(), GridError> {
+        let mut th = vec![f32::NAN; lab.len()];
+        let mut ps = vec![f32::NAN; lab.len()];
+        let (mut n, mut m) = (0, 0);
+        for i in 0..lab.len() {
+            if !is_target(lab[i]) {
+                continue;
             }
-            theta.write_block(b, &th)?;
-            psi.write_block(b, &ps)?;
+            n += 1;
+            let v = d(i);
+            if v.iter().any(|&c| c != 0.0) {
+                let (t, p) = crate::trace::angles(DVec3::from_array(v.map(f64::from)));
+                th[i] = t as f32;
+                ps[i] = p as f32;
+                m += 1;
+            }
+        }
+        self.theta.write_block(b, &th)?;
+        self.psi.write_block(b, &ps)?;
+        let i = self.theta.spec().block_linear(b) as usize;
+        self.written[i].store(true, std::sync::atomic::Ordering::Relaxed);
+        let mut c = self
+            .counts
+            .lock()
+            .expect("no writer panics holding the counts");
+        c.0 += n;
+        c.1 += m;
+        Ok(())
+    }
+
+    /// Write the blocks not written yet from `dirs`, publish theta and psi, and return
+    /// the counts (target voxels, voxels with a direction).
+    fn finish(
+        self,
+        run: &RunDir,
+        labels: &dyn BlockStore<u8>,
+        dirs: &Directions,
+        mem: MemBudget,
+        progress: &dyn Progress,
+    ) -> Result<(u64, u64), crate::Error> {
+        let spec = labels.spec().clone();
+        let rest: Vec<Idx3> = spec
+            .block_indices()
+            .into_iter()
+            .filter(|b| {
+                !self.written[spec.block_linear(*b) as usize]
+                    .load(std::sync::atomic::Ordering::Relaxed)
+            })
+            .collect();
+        let workers = mem.workers(
+            "writing theta and psi",
+            0,
+            Self::block_bytes(&spec) + volume(spec.chunk) * 12,
+            rayon::current_num_threads(),
+        )?;
+        progress.start("map (writing theta, psi)", rest.len() as u64);
+        map_bounded(&rest, workers, |&b| -> Result<(), GridError> {
+            let lab = labels.read_block(b)?;
+            let [x, y, z] = dirs.read(b)?;
+            self.write(b, &lab, |i| [x[i], y[i], z[i]])?;
             progress.advance(1);
-            Ok((n, m))
-        },
-    )?;
-    progress.finish();
-    run.commit_image("theta")?;
-    run.commit_image("psi")?;
-    Ok(counts.iter().fold((0, 0), |(a, b), (n, m)| (a + n, b + m)))
+            Ok(())
+        })?;
+        progress.finish();
+        run.commit_image("theta")?;
+        run.commit_image("psi")?;
+        Ok(self
+            .counts
+            .into_inner()
+            .expect("no writer panics holding the counts"))
+    }
 }
 
 /// A block of an exact batch: its index, its directions, and (voxel, seed) pairs.

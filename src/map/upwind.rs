@@ -20,7 +20,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 use crate::grid::{Block, BlockStore, GridError, MemStore, MmapStore};
-use crate::math::{volume, Idx3};
+use crate::math::{floor, volume, Idx3};
 use crate::parallel::map_bounded;
 use crate::progress::Progress;
 use crate::trace::field::Tile;
@@ -68,27 +68,23 @@ impl Directions {
         })
     }
 
-    /// Block `b` with a halo of [`HALO`], as [x, y, z] component blocks.
-    fn read_halo(&self, b: Idx3) -> Result<[Vec<f32>; 3], GridError> {
+    /// Block `b` with a halo of [`HALO`], one [x, y, z] per voxel (a visit reads all
+    /// three components of a voxel together).
+    fn read_halo(&self, b: Idx3) -> Result<Vec<[f32; 3]>, GridError> {
         let r = |i: usize| -> Result<Vec<f32>, GridError> {
             Ok(self.c[i].read_block_halo(b, HALO as usize, 0.0)?.data)
         };
-        Ok([r(0)?, r(1)?, r(2)?])
+        let [x, y, z] = [r(0)?, r(1)?, r(2)?];
+        Ok((0..x.len()).map(|i| [x[i], y[i], z[i]]).collect())
     }
 
-    /// The unit direction of each voxel of block `b` (None where there is none).
-    pub fn read(&self, b: Idx3) -> Result<Vec<Option<DVec3>>, GridError> {
-        let [x, y, z] = [
+    /// The x, y and z components of block `b` (all three zero where there is no value).
+    pub fn read(&self, b: Idx3) -> Result<[Vec<f32>; 3], GridError> {
+        Ok([
             self.c[0].read_block(b)?,
             self.c[1].read_block(b)?,
             self.c[2].read_block(b)?,
-        ];
-        Ok((0..x.len())
-            .map(|i| {
-                let v = DVec3::new(f64::from(x[i]), f64::from(y[i]), f64::from(z[i]));
-                (v != DVec3::ZERO).then_some(v)
-            })
-            .collect())
+        ])
     }
 
     /// Write the directions of block `b` (None: no value).
@@ -147,17 +143,105 @@ pub struct TransportStats {
 pub fn worker_bytes(chunk: Idx3) -> u64 {
     let h = volume(chunk.map(|c| c + 2 * HALO));
     let tile = chunk.map(|c| (c + 2 * HALO - 2) as usize);
-    // u (f64), labels (u8), three f32 components, the visiting order (16 B per voxel
-    // of the block and its first layer of halo) and the output; the direction tile and
-    // what building it holds (u with the tile's margin, read once for both).
-    h * (8 + 1 + 12)
-        + volume(chunk.map(|c| c + 2 * REACH as u64)) * 16
+    // u (f64), labels (u8), the three f32 components as read and interleaved, the
+    // visiting order (a 16 B key, a chunk and an index per voxel of the block and its
+    // first layer of halo) and the output; the direction tile and what building it
+    // holds (u with the tile's margin, read once for both).
+    h * (8 + 1 + 24)
+        + volume(chunk.map(|c| c + 2 * REACH as u64)) * 24
         + volume(chunk) * 12
         + Tile::bytes(tile)
         + Tile::build_bytes(tile)
 }
 
+/// The blocks the stop ball touches: they hold the seeds every other voxel depends on.
+#[must_use]
+pub fn central_blocks(spec: &crate::grid::GridSpec, ball: &StopBall) -> Vec<Idx3> {
+    let c = [ball.center.z, ball.center.y, ball.center.x];
+    spec.block_indices()
+        .into_iter()
+        .filter(|b| {
+            let st = spec.block_start(*b);
+            let sh = spec.block_shape(*b);
+            (0..3).all(|a| {
+                (st[a] as f64) <= c[a] + ball.radius
+                    && ((st[a] + sh[a]) as f64) > c[a] - ball.radius
+            })
+        })
+        .collect()
+}
+
+/// Bytes the transport holds beyond its workers: the results of the central blocks,
+/// which are visited together and written when all are done.
+#[must_use]
+pub fn held_bytes(spec: &crate::grid::GridSpec, ball: &StopBall) -> u64 {
+    central_blocks(spec, ball).len() as u64 * volume(spec.chunk) * 12
+}
+
+/// Takes each block whose target voxels all have their direction, once, when they do:
+/// the block, its labels and its directions (x, y, z per voxel, zero where none).
+pub type Sink<'a> = &'a (dyn Fn(Idx3, &[u8], &[[f32; 3]]) -> Result<(), GridError> + Sync);
+
+/// What the transport knows about each block, updated after every visit.
+struct Book<'a> {
+    spec: &'a crate::grid::GridSpec,
+    /// Target voxels of the block's core still without a direction (MAX: not visited).
+    pending: Vec<u64>,
+    /// Whether a neighbour gained directions since the block's last visit.
+    stale: Vec<bool>,
+    stats: TransportStats,
+    /// Voxels done, for the progress bar.
+    done: u64,
+}
+
+impl Book<'_> {
+    fn lin(&self, b: Idx3) -> usize {
+        self.spec.block_linear(b) as usize
+    }
+
+    /// Whether block `b` is to be visited in a round.
+    fn due(&self, b: Idx3) -> bool {
+        let i = self.lin(b);
+        self.stale[i] && self.pending[i] > 0
+    }
+
+    /// Record visit `v` of block `b`; whether it set any voxel.
+    fn record(&mut self, b: Idx3, v: Visit) -> bool {
+        self.stats.visits += 1;
+        let i = self.lin(b);
+        let first = self.pending[i] == u64::MAX;
+        self.pending[i] = v.pending;
+        self.stale[i] = false;
+        if first {
+            // Voxels that are not targets count as done for the bar.
+            let vol = volume(self.spec.block_shape(b));
+            self.done += vol - v.ball - v.computed - v.filled - v.pending;
+        }
+        self.done += v.ball + v.computed + v.filled;
+        self.stats.from_ball += v.ball;
+        self.stats.upwind += v.computed;
+        self.stats.filled += v.filled;
+        let changed = v.ball + v.computed + v.filled > 0;
+        if changed {
+            for n in neighbours(b, self.spec.blocks()) {
+                let j = self.lin(n);
+                self.stale[j] = true;
+            }
+        }
+        changed
+    }
+}
+
 /// Transport the arrival direction into `dirs` for every target voxel.
+///
+/// The first round visits every block once, in an order that meets the dependencies
+/// between neighbouring blocks: first the central blocks (together: each reads the
+/// state before any of them and their results are written when all are done), then
+/// the others as soon as their neighbours nearer the center are done, nearest first,
+/// on `workers` threads. Two blocks that touch are never visited at the same time
+/// (one of them waits for the other). Later rounds go over the blocks with voxels left
+/// in eight colour groups (no two blocks of a group touch) until nothing changes,
+/// first by the upwind rule and then allowed to fill.
 pub fn transport(
     u: &dyn BlockStore<f64>,
     labels: &dyn BlockStore<u8>,
@@ -165,93 +249,97 @@ pub fn transport(
     ball: &StopBall,
     workers: usize,
     progress: &dyn Progress,
+    sink: Option<Sink>,
 ) -> Result<TransportStats, GridError> {
     let spec = u.spec();
-    let nb = spec.blocks();
     let blocks = spec.block_indices();
-    // Groups of blocks: by distance from the center to the block (in block edges),
-    // then by colour, so that dependencies (which run outwards) are mostly met in order.
+    let central = central_blocks(spec, ball);
     let c = [ball.center.z, ball.center.y, ball.center.x];
-    let key = |b: &Idx3| {
+    // Squared distance from the center to the block's nearest voxel.
+    let dist2 = |b: &Idx3| -> f64 {
         let st = spec.block_start(*b);
         let sh = spec.block_shape(*b);
-        let d2: f64 = (0..3)
+        (0..3)
             .map(|a| {
                 let lo = st[a] as f64;
                 let hi = (st[a] + sh[a] - 1) as f64;
                 let e = (lo - c[a]).max(c[a] - hi).max(0.0);
                 e * e
             })
-            .sum();
-        let ring = (d2.sqrt() / spec.chunk[0] as f64).floor() as u64;
-        let colour = (b[0] % 2) * 4 + (b[1] % 2) * 2 + (b[2] % 2);
-        (ring, colour)
+            .sum()
     };
-    let mut order = blocks.clone();
-    order.sort_by_key(|b| (key(b), spec.block_linear(*b)));
-    let mut groups: Vec<Vec<Idx3>> = Vec::new();
-    let mut last = None;
-    for b in order {
-        if last != Some(key(&b)) {
-            groups.push(Vec::new());
-            last = Some(key(&b));
+    let mut order: Vec<Idx3> = blocks
+        .iter()
+        .copied()
+        .filter(|b| !central.contains(b))
+        .collect();
+    order.sort_by(|a, b| {
+        dist2(a)
+            .total_cmp(&dist2(b))
+            .then(spec.block_linear(*a).cmp(&spec.block_linear(*b)))
+    });
+    // Later rounds: by distance from the center (in block edges), then by colour (no
+    // two blocks of a group touch), so that what a round finds moves outwards within it.
+    let key = |b: &Idx3| {
+        let ring = (dist2(b).sqrt() / spec.chunk[0] as f64).floor() as u64;
+        (ring, (b[0] % 2) * 4 + (b[1] % 2) * 2 + b[2] % 2)
+    };
+    let mut by_key = blocks.clone();
+    by_key.sort_by_key(|b| (key(b), spec.block_linear(*b)));
+    let mut colours: Vec<Vec<Idx3>> = Vec::new();
+    for (i, b) in by_key.iter().enumerate() {
+        if i == 0 || key(b) != key(&by_key[i - 1]) {
+            colours.push(Vec::new());
         }
-        groups.last_mut().expect("a group").push(b);
+        colours.last_mut().expect("a group").push(*b);
     }
-    let lin = |b: &Idx3| spec.block_linear(*b) as usize;
-    let mut pending = vec![u64::MAX; blocks.len()];
-    let mut stale = vec![true; blocks.len()];
-    let mut stats = TransportStats::default();
-    let mut done = 0u64;
+    let ctx = Ctx {
+        u,
+        labels,
+        dirs,
+        ball,
+        workers,
+        progress,
+        sink,
+    };
+    let mut book = Book {
+        spec,
+        pending: vec![u64::MAX; blocks.len()],
+        stale: vec![true; blocks.len()],
+        stats: TransportStats::default(),
+        done: 0,
+    };
     progress.start("map (upwind)", spec.num_voxels());
-    for (round_slot, rule) in [Rule::Upwind, Rule::Fill].into_iter().enumerate() {
+    for (slot, rule) in [Rule::Upwind, Rule::Fill].into_iter().enumerate() {
         if rule == Rule::Fill {
             // Every block with voxels left looks again, now allowed to fill.
-            for (i, p) in pending.iter().enumerate() {
-                stale[i] = *p > 0;
+            for i in 0..book.pending.len() {
+                book.stale[i] = book.pending[i] > 0;
             }
         }
         loop {
-            stats.rounds[round_slot] += 1;
+            let first = book.stats.rounds[slot] == 0 && rule == Rule::Upwind;
+            book.stats.rounds[slot] += 1;
             let mut changed = false;
-            for g in &groups {
-                let todo: Vec<Idx3> = g
-                    .iter()
-                    .copied()
-                    .filter(|b| stale[lin(b)] && pending[lin(b)] > 0)
-                    .collect();
-                if todo.is_empty() {
-                    continue;
-                }
-                // A group of fewer blocks than workers (the blocks around the center)
-                // spreads each visit over the threads instead.
-                let inside = todo.len() < workers;
-                let visits = map_bounded(&todo, workers, |&b| {
-                    visit(b, u, labels, dirs, ball, rule, inside)
-                })?;
-                for (b, v) in todo.iter().zip(visits) {
-                    stats.visits += 1;
-                    let i = lin(b);
-                    let first = pending[i] == u64::MAX;
-                    pending[i] = v.pending;
-                    stale[i] = false;
-                    if first {
-                        // Voxels that are not targets count as done for the bar.
-                        let vol = volume(spec.block_shape(*b));
-                        done += vol - v.ball - v.computed - v.filled - v.pending;
+            if first {
+                changed |= ctx.group(&mut book, &central, rule, true)?;
+                // They did not see each other's results: those with voxels left go
+                // again, one at a time, until none of them changes.
+                loop {
+                    let mut again = false;
+                    for b in &central {
+                        again |= ctx.group(&mut book, std::slice::from_ref(b), rule, false)?;
                     }
-                    done += v.ball + v.computed + v.filled;
-                    stats.from_ball += v.ball;
-                    stats.upwind += v.computed;
-                    stats.filled += v.filled;
-                    if v.ball + v.computed + v.filled > 0 {
-                        changed = true;
-                        for nbr in neighbours(*b, nb) {
-                            stale[lin(&nbr)] = true;
-                        }
+                    changed |= again;
+                    if !again {
+                        break;
                     }
                 }
-                progress.set_position(done);
+                changed |= ctx.ordered(&mut book, &order)?;
+            } else {
+                for g in &colours {
+                    changed |= ctx.group(&mut book, g, rule, false)?;
+                }
             }
             if !changed {
                 break;
@@ -259,8 +347,212 @@ pub fn transport(
         }
     }
     progress.finish();
-    stats.unreached = pending.iter().filter(|&&p| p != u64::MAX).sum();
+    let mut stats = book.stats;
+    stats.unreached = book.pending.iter().filter(|&&p| p != u64::MAX).sum();
     Ok(stats)
+}
+
+/// What the workers of [`Ctx::ordered`] share.
+struct OrderState<'b, 'c> {
+    /// Blocks whose earlier neighbours are all done, by rank.
+    ready: std::collections::BinaryHeap<std::cmp::Reverse<usize>>,
+    /// Earlier neighbours not done yet, by rank.
+    waits: Vec<u32>,
+    /// Blocks not done yet.
+    left: usize,
+    error: Option<GridError>,
+    panic: Option<Box<dyn std::any::Any + Send>>,
+    changed: bool,
+    book: &'b mut Book<'c>,
+}
+
+/// What a visit did, and the block's directions (x, y, z) when they are to be written
+/// by the caller.
+type Visited = (Visit, Option<[Vec<f32>; 3]>);
+
+/// What every visit of a transport reads.
+struct Ctx<'a> {
+    u: &'a dyn BlockStore<f64>,
+    labels: &'a dyn BlockStore<u8>,
+    dirs: &'a Directions,
+    ball: &'a StopBall,
+    workers: usize,
+    progress: &'a dyn Progress,
+    sink: Option<Sink<'a>>,
+}
+
+impl Ctx<'_> {
+    /// Hand block `b`, all of whose target voxels have their direction, to the sink.
+    fn finished(
+        &self,
+        b: Idx3,
+        lab: &[u8],
+        d: &[[f32; 3]],
+        hs: [usize; 3],
+        shape: Idx3,
+    ) -> Result<(), GridError> {
+        let Some(sink) = self.sink else {
+            return Ok(());
+        };
+        let h = HALO as usize;
+        let mut core_lab = Vec::with_capacity(volume(shape) as usize);
+        let mut core_d = Vec::with_capacity(volume(shape) as usize);
+        for z in h..h + shape[0] as usize {
+            for y in h..h + shape[1] as usize {
+                let row = (z * hs[1] + y) * hs[2] + h;
+                core_lab.extend_from_slice(&lab[row..row + shape[2] as usize]);
+                core_d.extend_from_slice(&d[row..row + shape[2] as usize]);
+            }
+        }
+        sink(b, &core_lab, &core_d)
+    }
+
+    /// Visit the due blocks of `group` at the same time: blocks that do not touch, or,
+    /// `together`, blocks that may, each visited against the state before the group and
+    /// written when all are done. A group of fewer blocks than workers spreads each
+    /// visit over the threads instead.
+    fn group(
+        &self,
+        book: &mut Book,
+        group: &[Idx3],
+        rule: Rule,
+        together: bool,
+    ) -> Result<bool, GridError> {
+        let todo: Vec<Idx3> = group.iter().copied().filter(|b| book.due(*b)).collect();
+        if todo.is_empty() {
+            return Ok(false);
+        }
+        let inside = todo.len() < self.workers;
+        let visits = map_bounded(&todo, self.workers, |&b| {
+            self.visit(b, rule, inside, !together)
+        })?;
+        let mut changed = Vec::with_capacity(todo.len());
+        for (b, (v, out)) in todo.iter().zip(visits) {
+            if let Some(out) = out {
+                for (store, comp) in self.dirs.c.iter().zip(out) {
+                    store.write_block(*b, &comp)?;
+                }
+            }
+            changed.push(book.record(*b, v));
+        }
+        // A block of the group did not see what the others (it may touch) found.
+        for (i, b) in todo.iter().enumerate().filter(|_| together) {
+            if changed.iter().enumerate().any(|(j, &c)| c && j != i) {
+                let k = book.lin(*b);
+                book.stale[k] = true;
+            }
+        }
+        self.progress.set_position(book.done);
+        Ok(changed.iter().any(|&c| c))
+    }
+
+    /// Visit the due blocks of `order` (nearest the center first) on the workers, each
+    /// once all its neighbours earlier in `order` are done.
+    fn ordered(&self, book: &mut Book, order: &[Idx3]) -> Result<bool, GridError> {
+        use std::cmp::Reverse;
+        let spec = book.spec;
+        let nb = spec.blocks();
+        let mut rank = vec![usize::MAX; spec.num_blocks() as usize];
+        for (r, b) in order.iter().enumerate() {
+            rank[book.lin(*b)] = r;
+        }
+        let later = |r: usize| {
+            neighbours(order[r], nb)
+                .map(|n| rank[spec.block_linear(n) as usize])
+                .filter(move |&q| q != usize::MAX && q > r)
+        };
+        let mut waits = vec![0u32; order.len()];
+        for r in 0..order.len() {
+            for q in later(r) {
+                waits[q] += 1;
+            }
+        }
+        let state = std::sync::Mutex::new(OrderState {
+            ready: (0..order.len())
+                .filter(|&r| waits[r] == 0)
+                .map(Reverse)
+                .collect(),
+            waits,
+            left: order.len(),
+            error: None,
+            panic: None,
+            changed: false,
+            book,
+        });
+        let wake = std::sync::Condvar::new();
+        let lock = || {
+            state
+                .lock()
+                .expect("nothing panics while it holds the lock")
+        };
+        let work = || loop {
+            let r = {
+                let mut st = lock();
+                loop {
+                    if st.error.is_some() || st.panic.is_some() || st.left == 0 {
+                        return;
+                    }
+                    if let Some(Reverse(r)) = st.ready.pop() {
+                        break r;
+                    }
+                    st = wake
+                        .wait(st)
+                        .expect("nothing panics while it holds the lock");
+                }
+            };
+            let b = order[r];
+            let due = lock().book.due(b);
+            // A panic stops the others too (they would wait for this block forever)
+            // and is raised again once they have.
+            let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                if due {
+                    self.visit(b, Rule::Upwind, false, true).map(Some)
+                } else {
+                    Ok(None)
+                }
+            }));
+            let mut st = lock();
+            match result {
+                Err(p) => {
+                    st.panic.get_or_insert(p);
+                }
+                Ok(Err(e)) => {
+                    st.error.get_or_insert(e);
+                }
+                Ok(Ok(v)) => {
+                    if let Some((v, _)) = v {
+                        st.changed |= st.book.record(b, v);
+                        self.progress.set_position(st.book.done);
+                    }
+                    st.left -= 1;
+                    for q in later(r) {
+                        st.waits[q] -= 1;
+                        if st.waits[q] == 0 {
+                            st.ready.push(Reverse(q));
+                        }
+                    }
+                }
+            }
+            drop(st);
+            wake.notify_all();
+        };
+        std::thread::scope(|s| {
+            for _ in 1..self.workers.max(1) {
+                s.spawn(work);
+            }
+            work();
+        });
+        let st = state
+            .into_inner()
+            .expect("nothing panics while it holds the lock");
+        if let Some(p) = st.panic {
+            std::panic::resume_unwind(p);
+        }
+        match st.error {
+            Some(e) => Err(e),
+            None => Ok(st.changed),
+        }
+    }
 }
 
 /// The 26 blocks around `b` (those inside the grid).
@@ -277,179 +569,258 @@ fn neighbours(b: Idx3, nb: Idx3) -> impl Iterator<Item = Idx3> {
     })
 }
 
-/// Visit block `b`: compute every target voxel without a direction whose upwind
-/// neighbours have theirs (in decreasing u, so neighbours inside the block come first).
-fn visit(
-    b: Idx3,
-    u: &dyn BlockStore<f64>,
-    labels: &dyn BlockStore<u8>,
-    dirs: &Directions,
-    ball: &StopBall,
-    rule: Rule,
-    parallel: bool,
-) -> Result<Visit, GridError> {
-    let spec = u.spec();
-    let start = spec.block_start(b);
-    let shape = spec.block_shape(b);
-    let h = HALO as usize;
-    // u is read once, with the margin the tile's boundary values need; the visit's
-    // own arrays keep the halo of HALO.
-    let wide = u.read_block_halo(b, h + SURFACE_REACH, f64::NAN)?;
-    let hs = shape.map(|c| c as usize + 2 * h);
-    let ub = Block {
-        origin: wide.origin.map(|o| o + SURFACE_REACH as i64),
-        shape: hs,
-        data: wide.crop([SURFACE_REACH; 3], hs),
-    };
-    let lb = labels.read_block_halo(b, h, 0)?;
-    let mut d = dirs.read_halo(b)?;
-    let strides = [hs[1] * hs[2], hs[2], 1];
-    let at = |z: usize, y: usize, x: usize| (z * hs[1] + y) * hs[2] + x;
-    // Upwind voxels are computed in the halo too (all but its outer layer, whose
-    // neighbours are not read), so chains of dependencies that zig-zag across the face
-    // of the block resolve in one visit; only the core is written.
-    let reach = if rule == Rule::Upwind { REACH } else { 0 };
-    let core = |l: [usize; 3]| (0..3).all(|a| l[a] >= h && l[a] < h + shape[a] as usize);
-    // The voxels to compute, each as one u128: decreasing u, then increasing index
-    // (sorting packed keys moves a third of the bytes a tuple would).
-    let mut todo: Vec<u128> = Vec::new();
-    let mut v = Visit::default();
-    for z in h - reach..h + shape[0] as usize + reach {
-        for y in h - reach..h + shape[1] as usize + reach {
-            for x in h - reach..h + shape[2] as usize + reach {
-                let i = at(z, y, x);
-                if is_target(lb.data[i]) && !known(&d, i) {
-                    todo.push(pack(ub.data[i], i));
+impl Ctx<'_> {
+    /// Visit block `b`: compute every target voxel without a direction whose upwind
+    /// neighbours have theirs (in decreasing u, so neighbours inside the block come first).
+    #[allow(clippy::too_many_lines)]
+    fn visit(
+        &self,
+        b: Idx3,
+        rule: Rule,
+        parallel: bool,
+        write: bool,
+    ) -> Result<Visited, GridError> {
+        let (u, dirs, ball) = (self.u, self.dirs, self.ball);
+        let spec = u.spec();
+        let start = spec.block_start(b);
+        let shape = spec.block_shape(b);
+        let h = HALO as usize;
+        // u is read once, with the margin the tile's boundary values need; the visit's
+        // own arrays keep the halo of HALO.
+        let wide = u.read_block_halo(b, h + SURFACE_REACH, f64::NAN)?;
+        let hs = shape.map(|c| c as usize + 2 * h);
+        let ub = Block {
+            origin: wide.origin.map(|o| o + SURFACE_REACH as i64),
+            shape: hs,
+            data: wide.crop([SURFACE_REACH; 3], hs),
+        };
+        let lb = self.labels.read_block_halo(b, h, 0)?;
+        let mut d = dirs.read_halo(b)?;
+        let strides = [hs[1] * hs[2], hs[2], 1];
+        let at = |z: usize, y: usize, x: usize| (z * hs[1] + y) * hs[2] + x;
+        // Upwind voxels are computed in the halo too (all but its outer layer, whose
+        // neighbours are not read), so chains of dependencies that zig-zag across the face
+        // of the block resolve in one visit; only the core is written.
+        let reach = if rule == Rule::Upwind { REACH } else { 0 };
+        let core = |l: [usize; 3]| (0..3).all(|a| l[a] >= h && l[a] < h + shape[a] as usize);
+        // The voxels to compute, each as one u128: decreasing u, then increasing index
+        // (sorting packed keys moves a third of the bytes a tuple would).
+        let mut todo: Vec<u128> = Vec::new();
+        let mut v = Visit::default();
+        for z in h - reach..h + shape[0] as usize + reach {
+            for y in h - reach..h + shape[1] as usize + reach {
+                for x in h - reach..h + shape[2] as usize + reach {
+                    let i = at(z, y, x);
+                    if is_target(lb.data[i]) && !known(&d, i) {
+                        todo.push(pack(ub.data[i], i));
+                    }
                 }
             }
         }
-    }
-    if todo.is_empty() {
-        return Ok(v);
-    }
-    // The tile covers the block's halo but its last node; the boundary nodes' values
-    // need SURFACE_REACH more nodes of u around that.
-    let tile = Tile::from_u(
-        &wide,
-        ub.origin.map(|o| o + 1),
-        [hs[0] - 2, hs[1] - 2, hs[2] - 2],
-    );
-    drop(wide);
-    let region = Region {
-        u: &ub.data,
-        lab: &lb.data,
-        hs,
-        origin: ub.origin,
-        tile: &tile,
-        ball,
-    };
-    // Decreasing u; ties in index order (the keys are distinct, so the order is
-    // deterministic).
-    todo.sort_unstable();
-    let local = |i: usize| [i / (hs[1] * hs[2]), i / hs[2] % hs[1], i % hs[2]];
-    // What voxel `t` gets from the directions known so far.
-    let eval = |d: &[Vec<f32>; 3], t: &u128, fill: bool| -> Upwind {
-        let i = index(*t);
-        let (ux, local) = (ub.data[i], local(i));
-        let g: [f64; 3] =
-            std::array::from_fn(|a| start[2 - a] as f64 + local[2 - a] as f64 - h as f64);
-        let p = DVec3::from_array(g);
-        let r = p - ball.center;
-        if r.length() <= ball.radius {
+        if todo.is_empty() {
+            self.finished(b, &lb.data, &d, hs, shape)?;
+            return Ok((v, None));
+        }
+        // The tile covers the block's halo but its last node; the boundary nodes' values
+        // need SURFACE_REACH more nodes of u around that.
+        let tile = Tile::from_u(
+            &wide,
+            ub.origin.map(|o| o + 1),
+            [hs[0] - 2, hs[1] - 2, hs[2] - 2],
+        );
+        drop(wide);
+        let region = Region {
+            u: &ub.data,
+            lab: &lb.data,
+            hs,
+            origin: ub.origin,
+            tile: &tile,
+            ball,
+        };
+        // (32-bit divisions: a visit's block with its halo holds far fewer than 2^32
+        // voxels, and they are much faster than 64-bit ones.)
+        let (plane, row) = ((hs[1] * hs[2]) as u32, hs[2] as u32);
+        let local = |i: usize| {
+            let i = i as u32;
+            [i / plane, i / row % hs[1] as u32, i % row].map(|c| c as usize)
+        };
+        // What voxel `i` gets from the directions known so far, and whether it is in the
+        // block's core.
+        let eval = |d: &[[f32; 3]], i: usize, fill: bool| -> (Upwind, bool) {
+            let (ux, local) = (ub.data[i], local(i));
+            let own = core(local);
+            let g: [f64; 3] =
+                std::array::from_fn(|a| start[2 - a] as f64 + local[2 - a] as f64 - h as f64);
+            let p = DVec3::from_array(g);
+            let r = p - ball.center;
             let n = r.length();
-            return Upwind::Value(if n > 1e-12 { r / n } else { DVec3::Z });
-        }
-        let step = match region.follow(d, p, ux) {
-            Upwind::Flat => upwind(&ub.data, &lb.data, d, i, ux, strides),
-            other => other,
+            if n <= ball.radius {
+                return (Upwind::Ball(if n > 1e-12 { r / n } else { DVec3::Z }), own);
+            }
+            let step = match region.follow(d, p, ux) {
+                Upwind::Flat => upwind(&ub.data, &lb.data, d, i, ux, strides),
+                other => other,
+            };
+            let value = match step {
+                Upwind::Wait | Upwind::Flat if fill && own => {
+                    mean_of_neighbours(&lb.data, d, i, strides).map_or(Upwind::Flat, Upwind::Filled)
+                }
+                other => other,
+            };
+            (value, own)
         };
-        match step {
-            Upwind::Wait(_) | Upwind::Flat if fill && core(local) => {
-                mean_of_neighbours(&lb.data, d, i, strides).map_or(Upwind::Flat, Upwind::Filled)
-            }
-            other => other,
-        }
-    };
-    let mut changed = false;
-    let mut apply = |d: &mut [Vec<f32>; 3], t: &u128, value: Upwind| {
-        let i = index(*t);
-        let local = local(i);
-        let own = core(local);
-        let (dir, filled) = match value {
-            Upwind::Value(dir) => (dir, false),
-            Upwind::Filled(dir) => (dir, true),
-            _ => {
-                v.pending += u64::from(own);
-                return;
+        let mut changed = false;
+        let mut apply = |d: &mut [[f32; 3]], i: usize, (value, own): (Upwind, bool)| {
+            let (dir, count) = match value {
+                Upwind::Value(dir) => (dir, &mut v.computed),
+                Upwind::Ball(dir) => (dir, &mut v.ball),
+                Upwind::Filled(dir) => (dir, &mut v.filled),
+                _ => {
+                    v.pending += u64::from(own);
+                    return;
+                }
+            };
+            d[i] = dir.as_vec3().to_array();
+            if own {
+                changed = true;
+                *count += 1;
             }
         };
-        for a in 0..3 {
-            d[a][i] = dir[a] as f32;
-        }
-        if !own {
-            return;
-        }
-        changed = true;
-        let g: [f64; 3] =
-            std::array::from_fn(|a| start[2 - a] as f64 + local[2 - a] as f64 - h as f64);
-        if filled {
-            v.filled += 1;
-        } else if (DVec3::from_array(g) - ball.center).length() <= ball.radius {
-            v.ball += 1;
-        } else {
-            v.computed += 1;
-        }
-    };
-    if rule == Rule::Upwind && parallel {
-        // In slices of decreasing u, in parallel against the directions known before
-        // the slice; a voxel that waited for one in its own slice is redone in order.
-        // Every value is the unique one of the dependency graph, so the result is the
-        // same as one voxel after the other.
-        for slice in todo.chunks(4096) {
-            let first: Vec<Upwind> = slice.par_iter().map(|t| eval(&d, t, false)).collect();
-            for (t, value) in slice.iter().zip(first) {
-                let value = match value {
-                    Upwind::Wait(n) if known(&d, n) => eval(&d, t, false),
-                    other => other,
-                };
-                apply(&mut d, t, value);
+        // In chunks of decreasing u, each visited in memory order: the chunk's voxels are
+        // a thin shell, and memory order keeps u, the tile and the directions in cache where
+        // the order of u would jump across the block. A voxel that waits for one of its own
+        // chunk is retried after the chunk, in the order of u, when all those above it are
+        // done. Every value is the unique one of the dependency graph, so the result is the
+        // same as one voxel after the other in the order of u.
+        let (starts, members) = chunks_of(&todo);
+        let mut retry: Vec<u128> = Vec::new();
+        let fill = rule == Rule::Fill;
+        for w in starts.windows(2) {
+            let chunk = &members[w[0]..w[1]];
+            retry.clear();
+            if parallel && !fill {
+                // Against the directions known before the chunk, spread over the threads.
+                let first: Vec<(Upwind, bool)> = chunk
+                    .par_iter()
+                    .map(|&i| eval(&d, i as usize, false))
+                    .collect();
+                for (&i, value) in chunk.iter().zip(first) {
+                    match value {
+                        (Upwind::Wait, _) => retry.push(pack(ub.data[i as usize], i as usize)),
+                        value => apply(&mut d, i as usize, value),
+                    }
+                }
+            } else {
+                // When filling, only upwind values are final out of order: what a voxel
+                // fills from its neighbours depends on which of them are done.
+                for &i in chunk {
+                    let i = i as usize;
+                    match eval(&d, i, false) {
+                        (Upwind::Wait, _) => retry.push(pack(ub.data[i], i)),
+                        value @ (Upwind::Value(_) | Upwind::Ball(_), _) => apply(&mut d, i, value),
+                        _ if fill => retry.push(pack(ub.data[i], i)),
+                        value => apply(&mut d, i, value),
+                    }
+                }
+            }
+            retry.sort_unstable();
+            for &t in &retry {
+                let value = eval(&d, index(t), fill);
+                apply(&mut d, index(t), value);
             }
         }
-    } else {
-        for t in &todo {
-            let value = eval(&d, t, rule == Rule::Fill);
-            apply(&mut d, t, value);
+        if v.pending == 0 {
+            self.finished(b, &lb.data, &d, hs, shape)?;
         }
-    }
-    if changed {
-        for (a, store) in dirs.c.iter().enumerate() {
-            store.write_block(b, &crop(&d[a], hs, shape, h))?;
+        if !changed {
+            return Ok((v, None));
         }
+        let out = std::array::from_fn(|a| crop(&d, a, hs, shape, h));
+        if !write {
+            return Ok((v, Some(out)));
+        }
+        for (store, comp) in dirs.c.iter().zip(&out) {
+            store.write_block(b, comp)?;
+        }
+        Ok((v, None))
     }
-    Ok(v)
 }
 
-fn crop(data: &[f32], hs: [usize; 3], shape: Idx3, h: usize) -> Vec<f32> {
+/// Component `a` of the block's core (without the halo of `h`).
+fn crop(data: &[[f32; 3]], a: usize, hs: [usize; 3], shape: Idx3, h: usize) -> Vec<f32> {
     let mut out = Vec::with_capacity(volume(shape) as usize);
     for z in h..h + shape[0] as usize {
         for y in h..h + shape[1] as usize {
             let row = (z * hs[1] + y) * hs[2];
-            out.extend_from_slice(&data[row + h..row + h + shape[2] as usize]);
+            out.extend(
+                data[row + h..row + h + shape[2] as usize]
+                    .iter()
+                    .map(|v| v[a]),
+            );
         }
     }
     out
 }
 
 enum Upwind {
+    /// From the upwind neighbours.
     Value(DVec3),
+    /// Inside the stop ball: the direction from the center.
+    Ball(DVec3),
     /// Set from the neighbours (no upwind neighbour).
     Filled(DVec3),
-    /// An upwind neighbour (this local index) has no direction yet.
-    Wait(usize),
+    /// An upwind neighbour has no direction yet.
+    Wait,
     /// No neighbour has a higher u.
     Flat,
     /// The voxel needs data beyond what this visit read (a voxel of the halo).
     Skip,
+}
+
+/// Voxels of a visit taken together, in memory order, about (see [`Ctx::visit`]).
+const CHUNK: usize = 4096;
+
+/// One key in this many, in memory order, chooses where the chunks split.
+const SAMPLE: usize = 16;
+
+/// Split the [`pack`]ed keys `todo` (in memory order) into chunks of consecutive keys,
+/// about [`CHUNK`] each: every key of a chunk sorts before every key of the next (higher
+/// u), and a chunk keeps memory order. Returns the voxel indices, chunk after chunk, and
+/// the bounds of the chunks in them (chunk k is `starts[k]..starts[k + 1]`).
+fn chunks_of(todo: &[u128]) -> (Vec<usize>, Vec<u32>) {
+    // Splitting keys from a sorted sample: far cheaper than sorting all the keys, and the
+    // chunks need not be equal.
+    let mut sample: Vec<u128> = todo.iter().step_by(SAMPLE).copied().collect();
+    sample.sort_unstable();
+    let mut splits: Vec<u128> = sample
+        .iter()
+        .skip(CHUNK / SAMPLE)
+        .step_by(CHUNK / SAMPLE)
+        .copied()
+        .collect();
+    splits.dedup();
+    let chunk: Vec<u32> = todo
+        .iter()
+        .map(|t| splits.partition_point(|s| s <= t) as u32)
+        .collect();
+    // Chunk k (of splits.len() + 1) is counted at k + 2, so that after the prefix sums
+    // starts[k + 1] is where it begins.
+    let mut starts = vec![0usize; splits.len() + 3];
+    for &k in &chunk {
+        starts[k as usize + 2] += 1;
+    }
+    for k in 2..starts.len() {
+        starts[k] += starts[k - 1];
+    }
+    // Filling moves starts[k + 1] to chunk k's end: chunk k is starts[k]..starts[k + 1]
+    // (the last window is empty).
+    let mut members = vec![0u32; todo.len()];
+    for (t, &k) in todo.iter().zip(&chunk) {
+        let k = k as usize;
+        members[starts[k + 1]] = index(*t) as u32;
+        starts[k + 1] += 1;
+    }
+    (starts, members)
 }
 
 /// Length (voxels) of each midpoint step of the short streamline a voxel follows before
@@ -471,7 +842,7 @@ struct Region<'a> {
 impl Region<'_> {
     /// Whether the cells within `m` voxels of the cell of `q` all lie in the tile.
     fn safe(&self, q: DVec3, m: i64) -> bool {
-        let c = [q.z.floor() as i64, q.y.floor() as i64, q.x.floor() as i64];
+        let c = [floor(q.z), floor(q.y), floor(q.x)];
         (0..3).all(|a| {
             c[a] - m >= self.tile.origin[a]
                 && c[a] + m + 1 < self.tile.origin[a] + self.tile.shape[a] as i64
@@ -483,7 +854,7 @@ impl Region<'_> {
     /// direction trilinearly at the foot from the corners of its cell, which all lie
     /// higher in u (else Flat, and the caller takes the one-cell upwind rule). A path
     /// that enters the stop ball takes the direction of its entry point.
-    fn follow(&self, d: &[Vec<f32>; 3], p: DVec3, ux: f64) -> Upwind {
+    fn follow(&self, d: &[[f32; 3]], p: DVec3, ux: f64) -> Upwind {
         let reach = STEP.ceil() as i64;
         let mut q = p;
         for _ in 0..STEPS {
@@ -516,7 +887,7 @@ impl Region<'_> {
         if q == p || !self.safe(q, 0) {
             return Upwind::Flat;
         }
-        let f = [q.z.floor(), q.y.floor(), q.x.floor()];
+        let f = [floor(q.z) as f64, floor(q.y) as f64, floor(q.x) as f64];
         let t = [q.z - f[0], q.y - f[1], q.x - f[2]];
         let l: [usize; 3] = std::array::from_fn(|a| (f[a] as i64 - self.origin[a]) as usize);
         let mut acc = DVec3::ZERO;
@@ -532,7 +903,7 @@ impl Region<'_> {
                 return Upwind::Flat;
             }
             if !known(d, n) {
-                return Upwind::Wait(n);
+                return Upwind::Wait;
             }
             acc += w * get(d, n);
             wsum += w;
@@ -567,22 +938,15 @@ fn ordered(x: f64) -> u64 {
 }
 
 /// Whether voxel `i` of a halo block has a direction.
-fn known(d: &[Vec<f32>; 3], i: usize) -> bool {
-    d[0][i] != 0.0 || d[1][i] != 0.0 || d[2][i] != 0.0
+fn known(d: &[[f32; 3]], i: usize) -> bool {
+    d[i].iter().any(|&c| c != 0.0)
 }
 
-fn get(d: &[Vec<f32>; 3], i: usize) -> DVec3 {
-    DVec3::new(f64::from(d[0][i]), f64::from(d[1][i]), f64::from(d[2][i]))
+fn get(d: &[[f32; 3]], i: usize) -> DVec3 {
+    DVec3::from_array(d[i].map(f64::from))
 }
 
-fn upwind(
-    u: &[f64],
-    lab: &[u8],
-    d: &[Vec<f32>; 3],
-    i: usize,
-    ux: f64,
-    strides: [usize; 3],
-) -> Upwind {
+fn upwind(u: &[f64], lab: &[u8], d: &[[f32; 3]], i: usize, ux: f64, strides: [usize; 3]) -> Upwind {
     let mut acc = DVec3::ZERO;
     let mut any = false;
     let mut strongest = (0.0, DVec3::ZERO);
@@ -599,7 +963,7 @@ fn upwind(
         };
         if let Some(n) = pick {
             if !known(d, n) {
-                return Upwind::Wait(n);
+                return Upwind::Wait;
             }
             let w = u[n] - ux;
             let dn = get(d, n);
@@ -623,12 +987,7 @@ fn upwind(
     })
 }
 
-fn mean_of_neighbours(
-    lab: &[u8],
-    d: &[Vec<f32>; 3],
-    i: usize,
-    strides: [usize; 3],
-) -> Option<DVec3> {
+fn mean_of_neighbours(lab: &[u8], d: &[[f32; 3]], i: usize, strides: [usize; 3]) -> Option<DVec3> {
     let mut acc = DVec3::ZERO;
     let mut any = None;
     for dz in -1i64..=1 {
@@ -654,4 +1013,80 @@ fn mean_of_neighbours(
     } else {
         first.normalize()
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Keys as a visit makes them: u in memory order, with runs of equal u (flat sheets)
+    /// and a spread of magnitudes.
+    fn keys(n: usize) -> Vec<u128> {
+        let mut x = 0x2545_f491_4f6c_dd1d_u64;
+        (0..n)
+            .map(|i| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                let u = if i % 7 == 0 {
+                    0.0
+                } else {
+                    (x >> 11) as f64 / (1u64 << 53) as f64 * 10f64.powi(-((x % 5) as i32))
+                };
+                pack(u, i)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn chunks_split_by_u_and_keep_memory_order() {
+        for n in [0, 1, 100, CHUNK - 1, CHUNK, 10 * CHUNK + 17, 50_000] {
+            let todo = keys(n);
+            let (starts, members) = chunks_of(&todo);
+            assert_eq!(members.len(), n);
+            assert_eq!(starts.first(), Some(&0));
+            assert_eq!(starts.last(), Some(&n));
+            // Every voxel once.
+            let mut seen = members.clone();
+            seen.sort_unstable();
+            assert!(seen.iter().enumerate().all(|(i, &m)| m as usize == i));
+            let key = |m: u32| todo[m as usize];
+            let mut before: Option<u128> = None;
+            for w in starts.windows(2) {
+                let chunk = &members[w[0]..w[1]];
+                // Memory order within a chunk.
+                assert!(chunk.windows(2).all(|p| p[0] < p[1]));
+                // Every key of a chunk after every key of the chunks before it.
+                if let (Some(b), Some(lo)) = (before, chunk.iter().map(|&m| key(m)).min()) {
+                    assert!(lo > b, "n = {n}: chunks overlap in u");
+                }
+                if let Some(hi) = chunk.iter().map(|&m| key(m)).max() {
+                    before = Some(hi);
+                }
+                assert!(
+                    chunk.len() <= 4 * CHUNK,
+                    "n = {n}: a chunk of {}",
+                    chunk.len()
+                );
+            }
+            if n >= 10 * CHUNK {
+                let chunks = starts.windows(2).filter(|w| w[1] > w[0]).count();
+                assert!(chunks >= n / CHUNK / 2, "n = {n}: only {chunks} chunks");
+            }
+        }
+    }
+
+    #[test]
+    fn packed_keys_go_by_decreasing_u_then_index() {
+        let us = [1.0, 0.5, 0.5, 1e-300, 0.0, -0.0, -1e-3, f64::NAN];
+        let mut k: Vec<(u128, usize)> = us
+            .iter()
+            .enumerate()
+            .map(|(i, &u)| (pack(u, i), i))
+            .collect();
+        k.sort_unstable();
+        let order: Vec<usize> = k.iter().map(|&(_, i)| i).collect();
+        assert_eq!(order, [7, 0, 1, 2, 3, 4, 5, 6]);
+        assert!(k.iter().all(|&(key, i)| index(key) == i));
+    }
 }

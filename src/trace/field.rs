@@ -13,6 +13,7 @@
 //! [`U_MARGIN`] nodes of it, so every tile that holds a node holds the same value, and a
 //! streamline does not depend on the tiling.
 
+use crate::math::floor;
 use glam::{DVec3, Vec4};
 
 use super::surface::{self, REACH};
@@ -39,13 +40,6 @@ pub struct Tile {
     /// Nodes held, `[z, y, x]`.
     pub shape: [usize; 3],
     nodes: Vec<Vec4>,
-}
-
-/// floor(x) as an integer without a libm call (x finite and well inside i64).
-#[inline]
-fn floor(x: f64) -> i64 {
-    let i = x as i64;
-    i - i64::from((i as f64) > x)
 }
 
 impl Tile {
