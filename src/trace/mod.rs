@@ -26,7 +26,7 @@ pub use stage::{read_seeds, trace, SeedTable, TraceError, TraceOptions, TraceRep
 /// atan2(sqrt(x^2 + y^2), z) in [0, pi], psi = atan2(y, x) in (-pi, pi].
 #[must_use]
 pub fn angles(d: glam::DVec3) -> (f64, f64) {
-    ((d.x * d.x + d.y * d.y).sqrt().atan2(d.z), d.y.atan2(d.x))
+    (d.x.hypot(d.y).atan2(d.z), d.y.atan2(d.x))
 }
 
 /// The unit vector of angles `(theta, psi)`.
