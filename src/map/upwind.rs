@@ -273,16 +273,25 @@ pub fn transport(
         .copied()
         .filter(|b| !central.contains(b))
         .collect();
-    order.sort_by(|a, b| {
-        dist2(a)
-            .total_cmp(&dist2(b))
-            .then(spec.block_linear(*a).cmp(&spec.block_linear(*b)))
-    });
+    // By distance in quarters of a block edge, then by colour: blocks about as far
+    // out hardly depend on each other, and those of one colour never touch, so they can
+    // run side by side (by distance alone, ties went in index order, and each waited
+    // for the touching one before it).
+    let colour = |b: &Idx3| (b[0] % 2) * 4 + (b[1] % 2) * 2 + b[2] % 2;
+    let quarter = spec.chunk.iter().copied().min().unwrap_or(4).max(4) as f64 / 4.0;
+    let rank = |b: &Idx3| {
+        (
+            (dist2(b).sqrt() / quarter).floor() as u64,
+            colour(b),
+            spec.block_linear(*b),
+        )
+    };
+    order.sort_by_key(rank);
     // Later rounds: by distance from the center (in block edges), then by colour (no
     // two blocks of a group touch), so that what a round finds moves outwards within it.
     let key = |b: &Idx3| {
         let ring = (dist2(b).sqrt() / spec.chunk[0] as f64).floor() as u64;
-        (ring, (b[0] % 2) * 4 + (b[1] % 2) * 2 + b[2] % 2)
+        (ring, colour(b))
     };
     let mut by_key = blocks.clone();
     by_key.sort_by_key(|b| (key(b), spec.block_linear(*b)));
