@@ -10,11 +10,13 @@
 //! result is the graph's unique solution, whatever the order of the blocks or the
 //! number of threads.
 //!
-//! Blocks are processed with a one-voxel halo, from the center's block outwards, in
-//! eight colour phases (no two blocks of a phase touch); a block whose neighbours gained
-//! values is visited again until nothing changes. Voxels with no upwind neighbour (flat
-//! sheets of boundary voxels, where u = 0 on every side) then take the mean direction of
-//! their neighbours that have one.
+//! Blocks are visited with a halo (see [`transport`]): first the blocks the stop ball
+//! touches, together, then every other block once its neighbours ranked before it
+//! (nearer the center) are done; later rounds visit, in eight colour groups (no two
+//! blocks of a group touch), the blocks whose neighbours gained values, until nothing
+//! changes. Voxels with no upwind neighbour (flat sheets of boundary voxels, where u = 0
+//! on every side) then take the mean direction of their neighbours that have one, in
+//! that fixed order of blocks.
 
 use glam::DVec3;
 use rayon::prelude::*;
