@@ -136,7 +136,7 @@ pub fn map(
             )?;
             // A block's angles are written as soon as all its voxels have a direction,
             // while its data is at hand.
-            let sink = |b: Idx3, lab: &[u8], d: &[[f32; 3]]| angles.write(b, lab, |i| d[i]);
+            let sink = |b: Idx3, lab: &[u8], d: &[Vec<f32>; 3]| angles.write(b, lab, d);
             let s = if cached {
                 let (mu, ml) = (
                     MemStore::new(spec.clone(), f64::NAN),
@@ -194,14 +194,15 @@ impl Angles {
         })
     }
 
-    /// Bytes [`Angles::write`] holds for a block.
+    /// Bytes [`Angles::write`] holds for a block: theta, psi, and the labels and
+    /// directions it is given.
     fn block_bytes(spec: &crate::grid::GridSpec) -> u64 {
         volume(spec.chunk) * (4 + 4 + 1 + 12)
     }
 
-    /// Write block `b` from its labels and the direction of each voxel (x, y, z; zero
-    /// where it has none).
-    fn write(&self, b: Idx3, lab: &[u8], d: impl Fn(usize) -> [f32; 3]) -> Result<(), GridError> {
+    /// Write block `b` from its labels and its [x, y, z] direction components (all three
+    /// zero where a voxel has none).
+    fn write(&self, b: Idx3, lab: &[u8], d: &[Vec<f32>; 3]) -> Result<(), GridError> {
         let mut th = vec![f32::NAN; lab.len()];
         let mut ps = vec![f32::NAN; lab.len()];
         let (mut n, mut m) = (0, 0);
@@ -210,8 +211,8 @@ impl Angles {
                 continue;
             }
             n += 1;
-            let v = d(i);
-            if v.iter().any(|&c| c != 0.0) {
+            let v = [d[0][i], d[1][i], d[2][i]];
+            if upwind::is_set(v) {
                 let (t, p) = crate::trace::angles(DVec3::from_array(v.map(f64::from)));
                 th[i] = t as f32;
                 ps[i] = p as f32;
@@ -253,14 +254,13 @@ impl Angles {
         let workers = mem.workers(
             "writing theta and psi",
             0,
-            Self::block_bytes(&spec) + volume(spec.chunk) * 12,
+            Self::block_bytes(&spec),
             rayon::current_num_threads(),
         )?;
         progress.start("map (writing theta, psi)", rest.len() as u64);
         map_bounded(&rest, workers, |&b| -> Result<(), GridError> {
             let lab = labels.read_block(b)?;
-            let [x, y, z] = dirs.read(b)?;
-            self.write(b, &lab, |i| [x[i], y[i], z[i]])?;
+            self.write(b, &lab, &dirs.read(b)?)?;
             progress.advance(1);
             Ok(())
         })?;

@@ -181,8 +181,9 @@ pub fn held_bytes(spec: &crate::grid::GridSpec, ball: &StopBall) -> u64 {
 }
 
 /// Takes each block whose target voxels all have their direction, once, when they do:
-/// the block, its labels and its directions (x, y, z per voxel, zero where none).
-pub type Sink<'a> = &'a (dyn Fn(Idx3, &[u8], &[[f32; 3]]) -> Result<(), GridError> + Sync);
+/// the block, its labels and its directions as [x, y, z] component blocks (all three
+/// zero where there is none), as [`Directions::read`] gives them.
+pub type Sink<'a> = &'a (dyn Fn(Idx3, &[u8], &[Vec<f32>; 3]) -> Result<(), GridError> + Sync);
 
 /// What the transport knows about each block, updated after every visit.
 struct Book<'a> {
@@ -239,8 +240,8 @@ impl Book<'_> {
 /// The first round visits every block once, in an order that meets the dependencies
 /// between neighbouring blocks: first the central blocks (together: each reads the
 /// state before any of them and their results are written when all are done), then
-/// the others as soon as their neighbours nearer the center are done, nearest first,
-/// on `workers` threads. Two blocks that touch are never visited at the same time
+/// the others as soon as their neighbours ranked before them (by distance from the
+/// center, then colour) are done, on `workers` threads. Two blocks that touch are never visited at the same time
 /// (one of them waits for the other). Later rounds go over the blocks with voxels left
 /// in eight colour groups (no two blocks of a group touch) until nothing changes,
 /// first by the upwind rule and then allowed to fill.
@@ -393,31 +394,6 @@ struct Ctx<'a> {
 }
 
 impl Ctx<'_> {
-    /// Hand block `b`, all of whose target voxels have their direction, to the sink.
-    fn finished(
-        &self,
-        b: Idx3,
-        lab: &[u8],
-        d: &[[f32; 3]],
-        hs: [usize; 3],
-        shape: Idx3,
-    ) -> Result<(), GridError> {
-        let Some(sink) = self.sink else {
-            return Ok(());
-        };
-        let h = HALO as usize;
-        let mut core_lab = Vec::with_capacity(volume(shape) as usize);
-        let mut core_d = Vec::with_capacity(volume(shape) as usize);
-        for z in h..h + shape[0] as usize {
-            for y in h..h + shape[1] as usize {
-                let row = (z * hs[1] + y) * hs[2] + h;
-                core_lab.extend_from_slice(&lab[row..row + shape[2] as usize]);
-                core_d.extend_from_slice(&d[row..row + shape[2] as usize]);
-            }
-        }
-        sink(b, &core_lab, &core_d)
-    }
-
     /// Visit the due blocks of `group` at the same time: blocks that do not touch, or,
     /// `together`, blocks that may, each visited against the state before the group and
     /// written when all are done. A group of fewer blocks than workers spreads each
@@ -446,19 +422,21 @@ impl Ctx<'_> {
             }
             changed.push(book.record(*b, v));
         }
-        // A block of the group did not see what the others (it may touch) found.
-        for (i, b) in todo.iter().enumerate().filter(|_| together) {
-            if changed.iter().enumerate().any(|(j, &c)| c && j != i) {
-                let k = book.lin(*b);
-                book.stale[k] = true;
+        if together {
+            // A block of the group did not see what the others (it may touch) found.
+            for (i, b) in todo.iter().enumerate() {
+                if changed.iter().enumerate().any(|(j, &c)| c && j != i) {
+                    let k = book.lin(*b);
+                    book.stale[k] = true;
+                }
             }
         }
         self.progress.set_position(book.done);
         Ok(changed.iter().any(|&c| c))
     }
 
-    /// Visit the due blocks of `order` (nearest the center first) on the workers, each
-    /// once all its neighbours earlier in `order` are done.
+    /// Visit the blocks of `order` (the first round: all of them are due) on the
+    /// workers, each once all its neighbours earlier in `order` are done.
     fn ordered(&self, book: &mut Book, order: &[Idx3]) -> Result<bool, GridError> {
         use std::cmp::Reverse;
         let spec = book.spec;
@@ -512,15 +490,10 @@ impl Ctx<'_> {
                 }
             };
             let b = order[r];
-            let due = lock().book.due(b);
             // A panic stops the others too (they would wait for this block forever)
             // and is raised again once they have.
             let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                if due {
-                    self.visit(b, Rule::Upwind, false, true).map(Some)
-                } else {
-                    Ok(None)
-                }
+                self.visit(b, Rule::Upwind, false, true)
             }));
             let mut st = lock();
             match result {
@@ -530,11 +503,9 @@ impl Ctx<'_> {
                 Ok(Err(e)) => {
                     st.error.get_or_insert(e);
                 }
-                Ok(Ok(v)) => {
-                    if let Some((v, _)) = v {
-                        st.changed |= st.book.record(b, v);
-                        self.progress.set_position(st.book.done);
-                    }
+                Ok(Ok((v, _))) => {
+                    st.changed |= st.book.record(b, v);
+                    self.progress.set_position(st.book.done);
                     st.left -= 1;
                     for q in later(r) {
                         st.waits[q] -= 1;
@@ -613,7 +584,7 @@ impl Ctx<'_> {
         // neighbours are not read), so chains of dependencies that zig-zag across the face
         // of the block resolve in one visit; only the core is written.
         let reach = if rule == Rule::Upwind { REACH } else { 0 };
-        let core = |l: [usize; 3]| (0..3).all(|a| l[a] >= h && l[a] < h + shape[a] as usize);
+        let in_core = |l: [usize; 3]| (0..3).all(|a| l[a] >= h && l[a] < h + shape[a] as usize);
         // The voxels to compute, each as one u128: decreasing u, then increasing index
         // (sorting packed keys moves a third of the bytes a tuple would).
         let mut todo: Vec<u128> = Vec::new();
@@ -629,7 +600,11 @@ impl Ctx<'_> {
             }
         }
         if todo.is_empty() {
-            self.finished(b, &lb.data, &d, hs, shape)?;
+            // No target voxel in the core (a block is due only with voxels left).
+            if let Some(sink) = self.sink {
+                let none = || vec![0.0; volume(shape) as usize];
+                sink(b, &core(&lb.data, hs, h, shape), &[none(), none(), none()])?;
+            }
             return Ok((v, None));
         }
         // The tile covers the block's halo but its last node; the boundary nodes' values
@@ -659,7 +634,7 @@ impl Ctx<'_> {
         // block's core.
         let eval = |d: &[[f32; 3]], i: usize, fill: bool| -> (Upwind, bool) {
             let (ux, local) = (ub.data[i], local(i));
-            let own = core(local);
+            let own = in_core(local);
             let g: [f64; 3] =
                 std::array::from_fn(|a| start[2 - a] as f64 + local[2 - a] as f64 - h as f64);
             let p = DVec3::from_array(g);
@@ -740,13 +715,20 @@ impl Ctx<'_> {
                 apply(&mut d, index(t), value);
             }
         }
-        if v.pending == 0 {
-            self.finished(b, &lb.data, &d, hs, shape)?;
+        let sink = self.sink.filter(|_| v.pending == 0);
+        if !changed && sink.is_none() {
+            return Ok((v, None));
+        }
+        let out: [Vec<f32>; 3] = std::array::from_fn(|a| {
+            let comp: Vec<f32> = core(&d, hs, h, shape).iter().map(|c| c[a]).collect();
+            comp
+        });
+        if let Some(sink) = sink {
+            sink(b, &core(&lb.data, hs, h, shape), &out)?;
         }
         if !changed {
             return Ok((v, None));
         }
-        let out = std::array::from_fn(|a| crop(&d, a, hs, shape, h));
         if !write {
             return Ok((v, Some(out)));
         }
@@ -757,17 +739,14 @@ impl Ctx<'_> {
     }
 }
 
-/// Component `a` of the block's core (without the halo of `h`).
-fn crop(data: &[[f32; 3]], a: usize, hs: [usize; 3], shape: Idx3, h: usize) -> Vec<f32> {
+/// The core of a visit's array `data` (a block of `shape` with a halo of `h`, `hs` in
+/// all).
+fn core<T: Copy>(data: &[T], hs: [usize; 3], h: usize, shape: Idx3) -> Vec<T> {
     let mut out = Vec::with_capacity(volume(shape) as usize);
     for z in h..h + shape[0] as usize {
         for y in h..h + shape[1] as usize {
-            let row = (z * hs[1] + y) * hs[2];
-            out.extend(
-                data[row + h..row + h + shape[2] as usize]
-                    .iter()
-                    .map(|v| v[a]),
-            );
+            let row = (z * hs[1] + y) * hs[2] + h;
+            out.extend_from_slice(&data[row..row + shape[2] as usize]);
         }
     }
     out
@@ -950,7 +929,13 @@ fn ordered(x: f64) -> u64 {
 
 /// Whether voxel `i` of a halo block has a direction.
 fn known(d: &[[f32; 3]], i: usize) -> bool {
-    d[i].iter().any(|&c| c != 0.0)
+    is_set(d[i])
+}
+
+/// Whether a direction (x, y, z) is set: (0, 0, 0) means "no value".
+#[must_use]
+pub fn is_set(v: [f32; 3]) -> bool {
+    v.iter().any(|&c| c != 0.0)
 }
 
 fn get(d: &[[f32; 3]], i: usize) -> DVec3 {

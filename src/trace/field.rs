@@ -13,11 +13,11 @@
 //! [`U_MARGIN`] nodes of it, so every tile that holds a node holds the same value, and a
 //! streamline does not depend on the tiling.
 
-use crate::math::floor;
 use glam::{DVec3, Vec4};
 
 use super::surface::{self, REACH};
 use crate::grid::Block;
+use crate::math::floor;
 
 /// Nodes of u a tile is built from beyond its own box on every side: one for the
 /// central differences, and the reach of the boundary nodes' sub-voxel values.
