@@ -30,14 +30,9 @@ use harmap::progress::Silent;
 use harmap::run::RunDir;
 use harmap::trace::field::Tile;
 use harmap::trace::integrate::Rk45;
-use harmap::trace::metrics::singular_values;
+use harmap::trace::metrics::{orientation, singular_values};
 use harmap::trace::seeds::SeedKind;
 use harmap::trace::stage::{trace_seeds, TraceOptions, Tracer};
-
-/// Positive where the flat triangle of sphere points `a, b, c` faces outward.
-fn orient(a: DVec3, b: DVec3, c: DVec3) -> f64 {
-    (b - a).cross(c - a).dot(a + b + c)
-}
 
 /// Offset (voxels) of the two extra seeds around each vertex.
 const D: f64 = 1e-4;
@@ -57,7 +52,7 @@ fn report(run: &RunDir, name: &str, rk: Rk45) -> Result<(), harmap::Error> {
     let sphere: Vec<DVec3> = t.outcomes.iter().map(|o| (o.end - c).normalize()).collect();
     let is_flipped = |tr: &[u32; 3]| {
         let [a, b, s] = tr.map(|i| sphere[i as usize]);
-        orient(a, b, s) < 0.0
+        orientation(a, b, s) < 0.0
     };
     let flipped: Vec<[u32; 3]> = mesh.triangles.iter().copied().filter(is_flipped).collect();
 

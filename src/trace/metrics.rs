@@ -95,7 +95,7 @@ pub fn surface(
         };
         m.measured += 1;
         let ns = (sb - sa).cross(sc - sa);
-        let orient = ns.dot(sa + sb + sc);
+        let orient = orientation(sa, sb, sc);
         if orient == 0.0 {
             m.degenerate += 1;
             continue;
@@ -122,6 +122,13 @@ pub fn surface(
     m.log_area_ratio = Quantiles::of(log_area);
     m.conformal = Quantiles::of(conf);
     m
+}
+
+/// Positive where the flat triangle of sphere points `a, b, c` faces outward (counter-
+/// clockwise seen from outside), negative where it is flipped, zero when degenerate.
+#[must_use]
+pub fn orientation(a: DVec3, b: DVec3, c: DVec3) -> f64 {
+    (b - a).cross(c - a).dot(a + b + c)
 }
 
 /// Coordinates of a triangle in its own plane: a at 0, b on the first axis.
