@@ -170,7 +170,16 @@ fn main() -> Result<(), harmap::Error> {
         return Ok(());
     };
     let run = RunDir::open(std::path::Path::new(&path))?;
-    report(&run, "RK45, atol 1e-6 (the default)", Rk45::default())?;
+    let default = Rk45::for_seeds(SeedKind::Surface);
+    report(
+        &run,
+        &format!(
+            "RK45, atol {:e} (the default for surface seeds)",
+            default.atol
+        ),
+        default,
+    )?;
+    report(&run, "RK45, atol 1e-6", Rk45::default())?;
     for h in [0.25, 0.1] {
         let fixed = Rk45 {
             atol: f64::INFINITY,

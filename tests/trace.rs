@@ -139,8 +139,9 @@ fn tables_are_the_same_for_any_threads_tiles_and_budget() {
 #[test]
 fn every_seed_gets_a_stop_reason() {
     let dir = tempfile::tempdir().unwrap();
-    let run = solved_ball(dir.path(), 40, 16);
-    // A stop ball inside the sink, where phi is flat: streamlines stall there.
+    // A stop ball deep inside a wide sink, where phi is flat farther than the field's
+    // spline reaches: streamlines stall there.
+    let run = crate::common::solved_ball_with_sink(dir.path(), 40, 16, 4.0);
     let o = TraceOptions {
         stop_radius: Some(0.2),
         sample: Some(500),

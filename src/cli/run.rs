@@ -143,15 +143,15 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
             .ok()
             .flatten()
             .is_some();
+        let seeds = if is_mesh {
+            harmap::trace::SeedKind::Surface
+        } else {
+            harmap::trace::SeedKind::Boundary
+        };
         let opts = harmap::trace::TraceOptions {
-            seeds: if is_mesh {
-                harmap::trace::SeedKind::Surface
-            } else {
-                harmap::trace::SeedKind::Boundary
-            },
             stop_radius: a.stop_radius,
             mem: a.opts.mem,
-            ..harmap::trace::TraceOptions::default()
+            ..harmap::trace::TraceOptions::for_seeds(seeds)
         };
         let t = std::time::Instant::now();
         let r = harmap::trace::trace(&run, &opts, &Bars::new(g))?;

@@ -35,7 +35,7 @@ use super::Global;
 ///   harmap trace spot.harmap
 ///   harmap trace spot.harmap --seeds surface
 ///   harmap trace big.harmap --sample 50000 --mem 256MiB
-///   harmap trace spot.harmap --atol 1e-5       # faster, noisier at 1e-5 radians
+///   harmap trace spot.harmap --atol 1e-5       # faster, a noisier sphere map
 #[derive(clap::Args, Debug)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
@@ -64,11 +64,13 @@ pub struct TraceArgs {
     /// Memory budget: peak resident memory (e.g. 256MiB, 2GiB).
     #[arg(long, value_name = "SIZE", default_value = "1GiB")]
     pub mem: MemBudget,
-    /// Error allowed per RK45 step, voxels. 1e-5 takes about 40% fewer field
-    /// evaluations with the same arrival angles on the ball, but a noisier sphere map
-    /// (more flipped triangles on spot: 89 against 32; docs/trace.md).
-    #[arg(long, value_name = "VOXELS", default_value_t = Rk45::default().atol, help_heading = "Integrator")]
-    pub atol: f64,
+    /// Error allowed per RK45 step, voxels [default: 1e-6 for boundary seeds, 1e-8 for
+    /// surface seeds]. The arrival angles on the ball are the same from 1e-6 to 1e-8;
+    /// a mesh's sphere map is not: its smallest triangles flip where neighbouring
+    /// streamlines differ by the step control's noise (spot: 54 flipped at 1e-6, 14 at
+    /// 1e-8; docs/trace.md).
+    #[arg(long, value_name = "VOXELS", help_heading = "Integrator")]
+    pub atol: Option<f64>,
     /// Error allowed per voxel of step, on top of --atol: a step of h voxels may err by
     /// atol + rtol * h.
     #[arg(long, value_name = "FRACTION", default_value_t = Rk45::default().rtol, help_heading = "Integrator")]
@@ -98,17 +100,18 @@ impl TraceArgs {
     /// The library options.
     #[must_use]
     pub fn options(&self) -> TraceOptions {
+        let seeds = match self.seeds {
+            SeedArg::Boundary => SeedKind::Boundary,
+            SeedArg::Surface => SeedKind::Surface,
+        };
         TraceOptions {
-            seeds: match self.seeds {
-                SeedArg::Boundary => SeedKind::Boundary,
-                SeedArg::Surface => SeedKind::Surface,
-            },
+            seeds,
             sample: self.sample,
             stop_radius: self.stop_radius,
             tile: self.tile,
             mem: self.mem,
             rk: Rk45 {
-                atol: self.atol,
+                atol: self.atol.unwrap_or(Rk45::for_seeds(seeds).atol),
                 rtol: self.rtol,
                 h_min: self.h_min,
                 h_max: self.h_max,

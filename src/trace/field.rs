@@ -1,17 +1,32 @@
-//! The direction field of a tile: node directions of steepest descent of phi,
-//! trilinearly interpolated.
+//! The direction field of a tile: node directions of steepest descent of phi, joined
+//! by a quadratic B-spline.
 //!
 //! The gradient of the trilinear interpolant of phi (the paper's eq. 6) jumps across cell
 //! faces, which an adaptive integrator pays for with rejected steps at every face. So
-//! the direction is taken at the grid nodes and interpolated trilinearly: a continuous
-//! field. At a node it is grad(u)/|grad(u)| for u = 1 - phi (central differences of the
-//! f64 u, one-sided where a neighbour has no value), so -grad(phi) whatever its size:
-//! down a thin arm |grad(phi)| falls to 1e-22 and below, which a stored gradient would
-//! flush to zero but a unit vector keeps. The differences read the boundary nodes'
-//! sub-voxel values, and exterior nodes next to the solid take the smoothed surface's
-//! normal ([`super::surface`]). A node's direction depends only on u within
-//! [`U_MARGIN`] nodes of it, so every tile that holds a node holds the same value, and a
-//! streamline does not depend on the tiling.
+//! the direction is taken at the grid nodes. At a node it is grad(u)/|grad(u)| for
+//! u = 1 - phi (central differences of the f64 u, one-sided where a neighbour has no
+//! value), so -grad(phi) whatever its size: down a thin arm |grad(phi)| falls to 1e-22
+//! and below, which a stored gradient would flush to zero but a unit vector keeps. The
+//! differences read the boundary nodes' sub-voxel values, and exterior nodes next to the
+//! solid take the smoothed surface's normal ([`super::surface`]).
+//!
+//! Between the nodes, the field is the tensor-product quadratic B-spline of the node
+//! directions over the 3 x 3 x 3 nodes nearest the point ([`Tile::direction`]). It is
+//! C1: its derivative is continuous too, where trilinear interpolation of the same
+//! nodes has a kink at every cell face. On a kink an RK45 step's error shrinks like h^2,
+//! not h^5, so the step control rejected a third of its steps there (near the center,
+//! where the directions turn fastest, and just below the surface). With the spline, on
+//! the 256^3 ball with 50,000 seeds, rejections fell from 1.84 million to 0.12 million
+//! and field evaluations by 45%, with the same arrival angles (docs/trace.md). Like any
+//! B-spline it reproduces linear fields exactly; it smooths over one node more than the
+//! trilinear interpolant. Where one of the 27 nodes has no value (beyond the exterior
+//! layers, or off the grid) the trilinear interpolant is used, which tells a point
+//! that has left the domain.
+//!
+//! A node's direction depends only on u within [`U_MARGIN`] nodes of it, so every tile
+//! that holds a node holds the same value; a tile's halo holds every node the spline
+//! reads for the points its streamlines evaluate, so a streamline does not depend on the
+//! tiling.
 
 use glam::{DVec3, Vec4};
 
@@ -195,11 +210,16 @@ impl Tile {
         Some(DVec3::new(f64::from(n.x), f64::from(n.y), f64::from(n.z)).normalize())
     }
 
-    /// The unit direction of descent of phi at `p`. Flat where the node directions
-    /// around `p` cancel (a ridge between two basins) or vanish.
+    /// The unit direction of descent of phi at `p`: the quadratic B-spline of the node
+    /// directions ([`Tile::spline`]), or their trilinear interpolant where a node of
+    /// the spline has no value. Flat where the node directions around `p` cancel (a
+    /// ridge between two basins) or vanish.
     #[inline]
     pub fn direction(&self, p: DVec3) -> Result<DVec3, NoDirection> {
-        let (g, _) = self.interpolate(p)?;
+        let g = match self.spline(p) {
+            Some(g) => g,
+            None => self.interpolate(p)?.0,
+        };
         let n2 = g.length_squared();
         if n2 > 1e-12 {
             return Ok(g * (1.0 / n2.sqrt()));
@@ -215,6 +235,51 @@ impl Tile {
         } else {
             Err(NoDirection::Flat)
         }
+    }
+
+    /// The tensor-product quadratic B-spline of the node directions at `p` (not unit
+    /// length), if the tile holds the 3 x 3 x 3 nodes around the node nearest `p` and
+    /// all have a value. Per axis, with t = p - n in [-1/2, 1/2) from the nearest node n,
+    /// nodes n - 1, n, n + 1 weigh (1/2 - t)^2 / 2, 3/4 - t^2 and (1/2 + t)^2 / 2: C1
+    /// across the midplanes where n changes, and exact for linear fields. In f32 on four
+    /// lanes, like the trilinear interpolant.
+    #[inline]
+    #[must_use]
+    pub fn spline(&self, p: DVec3) -> Option<DVec3> {
+        let c = [p.z, p.y, p.x];
+        let mut base = 0usize;
+        let mut w = [[0.0f32; 3]; 3];
+        let strides = [self.shape[1] * self.shape[2], self.shape[2], 1];
+        for a in 0..3 {
+            let n = floor(c[a] + 0.5);
+            let l = n - self.origin[a];
+            if l < 1 || l + 1 >= self.shape[a] as i64 {
+                return None;
+            }
+            base += (l as usize - 1) * strides[a];
+            let t = (c[a] - n as f64) as f32;
+            let (lo, hi) = (0.5 - t, 0.5 + t);
+            w[a] = [0.5 * lo * lo, 0.75 - t * t, 0.5 * hi * hi];
+        }
+        let [wz, wy, wx] = w;
+        let n = &self.nodes;
+        let mut acc = Vec4::ZERO;
+        for (dz, &a) in wz.iter().enumerate() {
+            for (dy, &b) in wy.iter().enumerate() {
+                let o = base + dz * strides[0] + dy * strides[1];
+                let row = &n[o..o + 3];
+                acc += (row[0] * wx[0] + row[1] * wx[1] + row[2] * wx[2]) * (a * b);
+            }
+        }
+        // A node without a value (NaN u) makes the sum's u NaN, whatever its weight.
+        if acc.w.is_nan() {
+            return None;
+        }
+        Some(DVec3::new(
+            f64::from(acc.x),
+            f64::from(acc.y),
+            f64::from(acc.z),
+        ))
     }
 
     /// The nearest node within `r` nodes of the cell of `p` (a cube) whose u exceeds u at
@@ -377,6 +442,104 @@ mod tests {
             }
         }
         u
+    }
+
+    /// A tile of `n` nodes a side from the origin whose node values are `f(x, y, z)`.
+    fn tile_of(n: usize, mut f: impl FnMut(f32, f32, f32) -> Vec4) -> Tile {
+        let mut nodes = Vec::with_capacity(n * n * n);
+        for z in 0..n {
+            for y in 0..n {
+                for x in 0..n {
+                    nodes.push(f(x as f32, y as f32, z as f32));
+                }
+            }
+        }
+        Tile {
+            origin: [0; 3],
+            shape: [n; 3],
+            nodes,
+        }
+    }
+
+    /// Node values from a fixed pseudo-random sequence (a linear congruential generator).
+    fn noisy(n: usize) -> Tile {
+        let mut s = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            s = s
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (s >> 40) as f32 / (1u64 << 24) as f32 - 0.5
+        };
+        tile_of(n, |_, _, _| Vec4::new(next(), next(), next(), 1.0))
+    }
+
+    /// The spline reproduces node values that are linear in the position.
+    #[test]
+    fn spline_is_exact_for_linear_node_values() {
+        let f = |x: f32, y: f32, z: f32| {
+            Vec4::new(
+                0.3 + 0.5 * x - 0.25 * z,
+                -0.125 * y + 0.0625 * x,
+                1.0 + 0.2 * z,
+                2.0,
+            )
+        };
+        let t = tile_of(8, f);
+        for p in [
+            DVec3::new(3.3, 2.7, 5.9),
+            DVec3::new(1.5, 1.5, 1.5),
+            DVec3::new(4.0, 2.49, 3.51),
+        ] {
+            let want = f(p.x as f32, p.y as f32, p.z as f32);
+            let g = t.spline(p).unwrap();
+            let want = DVec3::new(f64::from(want.x), f64::from(want.y), f64::from(want.z));
+            assert!((g - want).length() < 1e-5, "{p}: {g} against {want}");
+        }
+        // Its 27 nodes must be held: the nearest node of p needs a neighbour each side.
+        assert!(t.spline(DVec3::new(0.4, 3.0, 3.0)).is_none());
+        assert!(t.spline(DVec3::new(6.6, 3.0, 3.0)).is_none());
+        assert!(t.spline(DVec3::new(6.4, 3.0, 3.0)).is_some());
+    }
+
+    /// Across the midplane between two nodes, where the nearest node and so the 27 nodes
+    /// change, the spline and its derivative are continuous; the trilinear
+    /// interpolant's derivative jumps at the cell face.
+    #[test]
+    fn spline_is_c1_where_its_nodes_change() {
+        let t = noisy(8);
+        let e = 1e-3;
+        let d = |f: &dyn Fn(DVec3) -> DVec3, p: DVec3| (f(p + DVec3::X * e) - f(p)) / e;
+        let spline = |p: DVec3| t.spline(p).unwrap();
+        let trilinear = |p: DVec3| t.interpolate(p).unwrap().0;
+        let mut kink = 0.0f64;
+        for (y, z) in [(3.2, 3.7), (2.6, 4.1), (4.45, 3.0)] {
+            // Midplane x = 3.5 for the spline, cell face x = 4 for the trilinear.
+            let (lo, hi) = (DVec3::new(3.5 - 2.0 * e, y, z), DVec3::new(3.5 + e, y, z));
+            let mid = DVec3::new(3.5, y, z);
+            assert!((spline(mid - DVec3::X * 1e-9) - spline(mid)).length() < 1e-5);
+            assert!(
+                (d(&spline, lo) - d(&spline, hi)).length() < 1e-2,
+                "derivative jumps at ({y}, {z}): {} against {}",
+                d(&spline, lo),
+                d(&spline, hi)
+            );
+            let (lo, hi) = (DVec3::new(4.0 - 2.0 * e, y, z), DVec3::new(4.0 + e, y, z));
+            kink = kink.max((d(&trilinear, lo) - d(&trilinear, hi)).length());
+        }
+        assert!(kink > 0.1, "the trilinear derivative should jump: {kink}");
+    }
+
+    /// A node without a value among the spline's 27 but not at a corner of the cell:
+    /// the trilinear interpolant is used.
+    #[test]
+    fn a_missing_spline_node_falls_back_to_trilinear() {
+        let mut t = noisy(8);
+        let p = DVec3::new(3.4, 3.3, 3.2); // nearest node (3, 3, 3), cell (3, 3, 3)
+        assert!(t.spline(p).is_some());
+        t.nodes[(2 * 8 + 2) * 8 + 2].w = f32::NAN; // node (2, 2, 2): spline only
+        assert!(t.spline(p).is_none());
+        let want = t.interpolate(p).unwrap().0.normalize();
+        assert!((t.direction(p).unwrap() - want).length() < 1e-12);
     }
 
     /// u linear in x, y and z and positive (no boundary, no exterior): every node

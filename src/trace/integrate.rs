@@ -9,6 +9,7 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use super::field::{NoDirection, Tile};
+use super::seeds::SeedKind;
 
 /// Integrator settings (lengths in voxels).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -36,6 +37,28 @@ impl Default for Rk45 {
             h_min: 1e-6,
             h_max: 2.0,
             max_steps: 20_000,
+        }
+    }
+}
+
+impl Rk45 {
+    /// Local error per step (voxels) by default for surface seeds: the vertices of a
+    /// mesh, whose sphere triangles can be as small as 1e-10 of the sphere. Their
+    /// orientation needs neighbouring streamlines that do not differ by the step
+    /// control's noise: on spot at resolution 128, 14 triangles flip at 1e-8 against 54
+    /// at 1e-6, with about the field evaluations the trilinear field took at 1e-6.
+    pub const SURFACE_ATOL: f64 = 1e-8;
+
+    /// The default integrator for `seeds`: [`Rk45::default`], with an atol of
+    /// [`Rk45::SURFACE_ATOL`] for surface seeds.
+    #[must_use]
+    pub fn for_seeds(seeds: SeedKind) -> Self {
+        match seeds {
+            SeedKind::Boundary => Self::default(),
+            SeedKind::Surface => Self {
+                atol: Self::SURFACE_ATOL,
+                ..Self::default()
+            },
         }
     }
 }

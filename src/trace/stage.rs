@@ -49,6 +49,18 @@ impl Default for TraceOptions {
     }
 }
 
+impl TraceOptions {
+    /// The default options for `seeds` (the integrator of [`Rk45::for_seeds`]).
+    #[must_use]
+    pub fn for_seeds(seeds: SeedKind) -> Self {
+        Self {
+            seeds,
+            rk: Rk45::for_seeds(seeds),
+            ..Self::default()
+        }
+    }
+}
+
 /// Errors of the trace stage.
 #[derive(Debug, thiserror::Error)]
 pub enum TraceError {

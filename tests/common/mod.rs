@@ -206,10 +206,15 @@ pub fn winding_disagreements(
 
 /// The standard ball at N (blocks of `chunk`) in `dir`, solved to rtol 1e-8.
 pub fn solved_ball(dir: &Path, n: u64, chunk: u64) -> PathBuf {
-    let out = dir.join(format!("ball{n}-{chunk}.harmap"));
+    solved_ball_with_sink(dir, n, chunk, 2.0)
+}
+
+/// [`solved_ball`] with a center (sink) of `sink_radius` voxels.
+pub fn solved_ball_with_sink(dir: &Path, n: u64, chunk: u64, sink_radius: f64) -> PathBuf {
+    let out = dir.join(format!("ball{n}-{chunk}-{sink_radius}.harmap"));
     let p = StandardBall {
         n,
-        sink_radius: 2.0,
+        sink_radius,
         chunk,
         mem: MemBudget::default(),
     };
