@@ -412,6 +412,7 @@ fn integrator_flags_trade_steps_for_accuracy_and_bad_ones_are_refused() {
             "--h-min 1 --h-max 0.5",
         ),
         (&["--max-steps", "0"][..], "--max-steps 0"),
+        (&["--atol", "inf"][..], "give finite numbers"),
     ] {
         let mut a = vec!["trace", r];
         a.extend_from_slice(args);

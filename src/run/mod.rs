@@ -59,6 +59,14 @@ pub enum RunError {
         /// The run.
         path: PathBuf,
     },
+    /// The directory that should hold the run does not exist.
+    ///
+    /// Fix: create it, or give another `-o`.
+    #[error("{}: the directory for the run does not exist; create it or give another -o", path.display())]
+    NoParent {
+        /// The missing directory.
+        path: PathBuf,
+    },
     /// The run was written by an incompatible version of harmap.
     #[error("{}: format version {found}, this harmap reads version {FORMAT_VERSION}; redo the run with this version", path.display())]
     Version {
@@ -173,8 +181,7 @@ impl Staging {
                 });
             }
         }
-        let lock_path = sibling(&dest, "lock");
-        let lock = fs::File::create(&lock_path).map_err(io(&lock_path))?;
+        let (lock, lock_path) = lock_file(&dest)?;
         if lock.try_lock().is_err() {
             return Err(RunError::Busy { path: dest });
         }
@@ -254,6 +261,20 @@ fn sibling(dest: &Path, suffix: &str) -> PathBuf {
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     dest.with_file_name(format!("{name}.{suffix}"))
+}
+
+/// The lock file of the run `dest` (next to it), created if missing, not yet locked.
+fn lock_file(dest: &Path) -> Result<(fs::File, PathBuf), RunError> {
+    let path = sibling(dest, "lock");
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        if !parent.is_dir() {
+            return Err(RunError::NoParent {
+                path: parent.to_path_buf(),
+            });
+        }
+    }
+    let file = fs::File::create(&path).map_err(io(&path))?;
+    Ok((file, path))
 }
 
 /// Where the run for `dest` is staged.
@@ -422,8 +443,7 @@ impl RunDir {
     /// Hold the run's lock file (`RUN.lock`) while a stage changes the run, so two
     /// harmap processes never write the same run. Released when the guard drops.
     pub fn lock(&self) -> Result<RunLock, RunError> {
-        let path = sibling(&self.root, "lock");
-        let file = fs::File::create(&path).map_err(io(&path))?;
+        let (file, path) = lock_file(&self.root)?;
         if file.try_lock().is_err() {
             return Err(RunError::Busy {
                 path: self.root.clone(),
@@ -532,5 +552,21 @@ mod tests {
         // Dropped without commit: nothing is left.
         drop(Staging::begin(&d.path().join("y.harmap"), false).unwrap());
         assert_eq!(std::fs::read_dir(d.path()).unwrap().count(), 1);
+    }
+
+    /// A run whose directory does not exist is refused with that directory's name, and
+    /// nothing is created.
+    #[test]
+    fn a_missing_parent_directory_is_named() {
+        let d = tempfile::tempdir().unwrap();
+        let parent = d.path().join("no-such-dir");
+        let e = Staging::begin(&parent.join("x.harmap"), false).unwrap_err();
+        assert!(
+            matches!(&e, RunError::NoParent { path } if *path == parent),
+            "{e}"
+        );
+        assert!(e.is_bad_input());
+        assert!(e.to_string().contains("does not exist"), "{e}");
+        assert_eq!(std::fs::read_dir(d.path()).unwrap().count(), 0);
     }
 }

@@ -73,7 +73,13 @@ impl Rk45 {
         let finite = [self.atol, self.rtol, self.h_min, self.h_max]
             .iter()
             .all(|v| v.is_finite());
-        if !finite || self.atol < 0.0 || self.rtol < 0.0 || self.atol + self.rtol <= 0.0 {
+        if !finite {
+            return Some(format!(
+                "--atol {} --rtol {} --h-min {} --h-max {}: give finite numbers",
+                self.atol, self.rtol, self.h_min, self.h_max
+            ));
+        }
+        if self.atol < 0.0 || self.rtol < 0.0 || self.atol + self.rtol <= 0.0 {
             return Some(format!(
                 "--atol {} --rtol {}: give tolerances that are zero or more, not both zero",
                 self.atol, self.rtol
