@@ -354,12 +354,13 @@ fn the_inverse_names_rows_it_cannot_place_and_refuses_bad_files() {
     let out = dir.path().join("out.csv");
     std::fs::write(
         &input,
-        "phi,theta,psi\n0.5,1.0,0.5\n1.5,1.0,0.5\n0.5,4.0,0.0\n",
+        "phi,theta,psi\n0.5,1.0,0.5\n1.5,1.0,0.5\n0.5,4.0,0.0\n0.5,3.1415927410125732,-1.8\n",
     )
     .unwrap();
     let c =
         harmap::map::inverse::inverse_csv(&r, &input, &out, MemBudget::default(), &Silent).unwrap();
-    assert_eq!((c.rows, c.failed), (3, 2));
+    // The last row is the pole as the map writes it (f32 pi, above f64 pi): placed.
+    assert_eq!((c.rows, c.failed), (4, 2));
     let text = std::fs::read_to_string(&out).unwrap();
     let lines: Vec<&str> = text.lines().collect();
     assert!(lines[1].ends_with(",ok"), "{}", lines[1]);
@@ -369,6 +370,7 @@ fn the_inverse_names_rows_it_cannot_place_and_refuses_bad_files() {
         lines[2]
     );
     assert!(lines[3].contains("theta 4"), "{}", lines[3]);
+    assert!(lines[4].ends_with(",ok"), "{}", lines[4]);
     // phi = 0.5 at (theta, psi) lands where phi is 0.5, in that direction.
     let f: Vec<f64> = lines[1]
         .split(',')

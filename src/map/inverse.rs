@@ -176,11 +176,15 @@ impl Inverse {
         if !(0.0..=1.0).contains(&u) {
             return Err(format!("u = 1 - phi = {u} is outside [0, 1]"));
         }
-        if !(0.0..=std::f64::consts::PI).contains(&theta) || !psi.is_finite() {
+        // The map stores theta in f32, whose pi (3.1415927410...) is above f64's: the
+        // pole as written must come back.
+        let top = f64::from(std::f32::consts::PI);
+        if !(0.0..=top).contains(&theta) || !psi.is_finite() {
             return Err(format!(
                 "theta {theta} must lie in [0, pi] and psi be finite"
             ));
         }
+        let theta = theta.min(std::f64::consts::PI);
         let d = crate::trace::unit(theta, psi);
         let c = self.ball.center;
         let target = u;
