@@ -67,7 +67,7 @@ pub struct TraceArgs {
     /// Error allowed per RK45 step, voxels [default: 1e-6 for boundary seeds, 1e-8 for
     /// surface seeds]. The arrival angles on the ball are the same from 1e-6 to 1e-8;
     /// a mesh's sphere map is not: its smallest triangles flip where neighbouring
-    /// streamlines differ by the step control's noise (spot: 54 flipped at 1e-6, 14 at
+    /// streamlines differ by the step control's noise (spot: 60 flipped at 1e-6, 14 at
     /// 1e-8; docs/trace.md).
     #[arg(long, value_name = "VOXELS", help_heading = "Integrator")]
     pub atol: Option<f64>,

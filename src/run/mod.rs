@@ -267,7 +267,9 @@ fn sibling(dest: &Path, suffix: &str) -> PathBuf {
 fn lock_file(dest: &Path) -> Result<(fs::File, PathBuf), RunError> {
     let path = sibling(dest, "lock");
     if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        if !parent.is_dir() {
+        // Only a parent that is not there: other failures (a file in the way, no
+        // permission) are reported by the create below, as the OS says them.
+        if fs::metadata(parent).is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound) {
             return Err(RunError::NoParent {
                 path: parent.to_path_buf(),
             });

@@ -45,7 +45,7 @@ impl Rk45 {
     /// Local error per step (voxels) by default for surface seeds: the vertices of a
     /// mesh, whose sphere triangles can be as small as 1e-10 of the sphere. Their
     /// orientation needs neighbouring streamlines that do not differ by the step
-    /// control's noise: on spot at resolution 128, 14 triangles flip at 1e-8 against 54
+    /// control's noise: on spot at resolution 128, 14 triangles flip at 1e-8 against 60
     /// at 1e-6, with about the field evaluations the trilinear field took at 1e-6.
     pub const SURFACE_ATOL: f64 = 1e-8;
 
@@ -106,7 +106,7 @@ impl Rk45 {
 
     /// How far (voxels, per axis) from a step's start its stage points may lie: steps
     /// whose stages stray farther are rejected, so a tile needs this many nodes of halo
-    /// (plus one for the cell) around the points it owns.
+    /// around the points it owns, plus the spline's reach ([`super::tiles::Tiling::halo_for`]).
     #[must_use]
     pub fn reach(&self) -> f64 {
         1.5 * self.h_max

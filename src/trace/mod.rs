@@ -1,7 +1,8 @@
 //! Streamlines from the boundary down -grad(phi) to the center, and the angles at which
 //! they arrive (the paper's steps 6-8).
 //!
-//! - [`field`]: node gradients of phi, trilinearly interpolated (a continuous field);
+//! - [`field`]: unit node directions of -grad(phi), approximated between the nodes by a
+//!   quadratic B-spline (a C1 field);
 //! - [`surface`]: sub-voxel values of u at the boundary nodes, for the field;
 //! - [`integrate`]: Dormand–Prince RK45 by arc length, with error control, stop reasons;
 //! - [`tiles`]: streamlines queued per tile, tiles built into a cache within the budget;

@@ -36,6 +36,8 @@ pub struct TraceOptions {
     pub mem: MemBudget,
 }
 
+/// Boundary seeds with [`Rk45::default`]; for surface seeds use
+/// [`TraceOptions::for_seeds`], which also picks their tolerance.
 impl Default for TraceOptions {
     fn default() -> Self {
         Self {
@@ -98,6 +100,8 @@ pub struct TraceReport {
     pub surface: Option<SurfaceMetrics>,
     /// Streamlines per second (tracing only).
     pub lines_per_second: f64,
+    /// The direction field the streamlines followed ([`crate::trace::field::FIELD`]).
+    pub field: &'static str,
 }
 
 /// The seed table as stored in `RUN/seeds/`.
@@ -639,6 +643,7 @@ pub fn trace(
         collisions,
         surface,
         lines_per_second: n as f64 / tr.seconds.max(1e-9),
+        field: super::field::FIELD,
     };
     write_seeds(run.root(), "seeds.partial", &table, opts.seeds)?;
     run.commit_image("seeds")?;

@@ -44,8 +44,11 @@ pub struct Tiling {
 }
 
 impl Tiling {
-    /// Halo needed by the integrator `rk`: its reach, plus one node for the cell, and
-    /// at least the nodes an escape from a flat sheet looks at.
+    /// Halo needed by the integrator `rk`: its reach rounded up, plus two nodes (a point
+    /// q reads the nodes from round(q) - 1 to round(q) + 1, which on the high side is
+    /// ceil(reach) + 1 beyond the last owned cell; the trilinear fallback needs one), and
+    /// at least the nodes an escape from a flat sheet looks at. Exact on the high side:
+    /// `the_halo_holds_the_spline_of_every_stage_point` checks it.
     #[must_use]
     pub fn halo_for(rk: &Rk45) -> i64 {
         (rk.reach().ceil() as i64 + 2).max(ESCAPE_RADIUS + 2)
@@ -382,4 +385,67 @@ pub fn trace_tiled(
 pub fn footprint(edge: u64, halo: i64, spec: &GridSpec) -> (u64, u64, u64) {
     let s = [(edge as i64 + 2 * halo) as usize; 3];
     (Tile::bytes(s), Tile::build_bytes(s), volume(spec.chunk) * 8)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The middle tile of a 3 x 3 x 3 tiling with `halo`, built from a linear, positive u
+    /// (every node has a value).
+    fn middle_tile(edge: u64, halo: i64) -> (Tiling, Tile) {
+        let tiling = Tiling {
+            grid: [3 * edge; 3],
+            edge,
+            halo,
+            cache_tiles: 1,
+            cache_chunks: 1,
+        };
+        let (origin, shape) = tiling.node_box(13);
+        let (uo, us) = Tile::u_box(origin, shape);
+        let mut u = Block::filled(uo, us, 0.0f64);
+        for z in 0..us[0] {
+            for y in 0..us[1] {
+                for x in 0..us[2] {
+                    let o = u.offset(z, y, x);
+                    let g = [z, y, x].map(|c| c as f64);
+                    u.data[o] = 1000.0 + 0.5 * g[2] - 0.25 * g[1] + 0.125 * g[0] + uo[0] as f64;
+                }
+            }
+        }
+        let tile = Tile::from_u(&u, origin, shape);
+        (tiling, tile)
+    }
+
+    /// Every stage point of a step started in a tile's own cells lies within `reach` of
+    /// the step's start per axis; the tile must hold the 27 nodes the spline reads there,
+    /// or the field would fall back to the trilinear interpolant in one tiling and not in
+    /// another. The extreme points are the corners of the core moved out by the reach.
+    /// One node less of halo fails on the high side: the halo is exact.
+    #[test]
+    fn the_halo_holds_the_spline_of_every_stage_point() {
+        for h_max in [2.0, 4.0, 16.0] {
+            let rk = Rk45 {
+                h_max,
+                ..Rk45::default()
+            };
+            let r = rk.reach();
+            let halo = Tiling::halo_for(&rk);
+            let edge = 8;
+            let (lo, hi) = (edge as f64, (2 * edge) as f64);
+            let below = lo - r;
+            let above = f64::from_bits(hi.to_bits() - 1) + r;
+            let (_, tile) = middle_tile(edge, halo);
+            for k in 0..8 {
+                let pick = |b: usize| if k >> b & 1 == 1 { above } else { below };
+                let q = DVec3::new(pick(0), pick(1), pick(2));
+                assert!(tile.spline(q).is_some(), "h_max {h_max}: {q}");
+            }
+            let (_, short) = middle_tile(edge, halo - 1);
+            assert!(
+                short.spline(DVec3::splat(above)).is_none(),
+                "h_max {h_max}: one node less of halo should not hold the spline"
+            );
+        }
+    }
 }
