@@ -20,23 +20,23 @@
 //! and field evaluations by 45%, with the same arrival angles (docs/trace.md). Like any
 //! B-spline it reproduces linear fields exactly; it approximates the node values rather
 //! than passing through them (at a node it weighs the node 0.42 and its neighbours the
-//! rest), so it smooths over one node more than the trilinear interpolant. Where one of the 27 nodes has no value (beyond the exterior
-//! layers, or off the grid) the trilinear interpolant is used, which tells a point
-//! that has left the domain.
+//! rest), so it smooths over one node more than the trilinear interpolant. Where one of
+//! the 27 nodes has no value (beyond the exterior layers, or off the grid) the
+//! trilinear interpolant is used, which tells a point that has left the domain.
 //!
 //! A node's direction depends only on u within [`U_MARGIN`] nodes of it, so every tile
 //! that holds a node holds the same value; a tile's halo holds every node the spline
 //! reads for the points its streamlines evaluate, so a streamline does not depend on the
 //! tiling.
 
-/// The field, as recorded with a trace (`stages.trace.result.field`).
-pub const FIELD: &str = "unit node directions of grad(u), quadratic B-spline";
-
 use glam::{DVec3, Vec4};
 
 use super::surface::{self, REACH};
 use crate::grid::Block;
 use crate::math::floor;
+
+/// The field, as recorded with a trace (`stages.trace.result.field`).
+pub const FIELD: &str = "unit node directions of grad(u), quadratic B-spline";
 
 /// Nodes of u a tile is built from beyond its own box on every side: one for the
 /// central differences, and the reach of the boundary nodes' sub-voxel values.
