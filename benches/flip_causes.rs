@@ -127,12 +127,8 @@ fn report(run: &RunDir, name: &str, rk: Rk45) -> Result<(), harmap::Error> {
             for s in p.windows(2) {
                 for k in 0..8 {
                     let q = s[0] + (s[1] - s[0]) * (f64::from(k) / 8.0);
-                    // The field the lines followed: the spline, or the trilinear
-                    // interpolant where the spline has no value (as Tile::direction).
-                    let g = tile
-                        .spline(q)
-                        .or_else(|| tile.interpolate(q).ok().map(|v| v.0));
-                    if let Some(g) = g {
+                    // The field the lines followed, before it is normalized.
+                    if let Ok(g) = tile.vector(q) {
                         w = w.min(g.length());
                     }
                 }

@@ -215,16 +215,23 @@ impl Tile {
         Some(DVec3::new(f64::from(n.x), f64::from(n.y), f64::from(n.z)).normalize())
     }
 
-    /// The unit direction of descent of phi at `p`: the quadratic B-spline of the node
+    /// The field's vector at `p`, not unit length: the quadratic B-spline of the node
     /// directions ([`Tile::spline`]), or their trilinear interpolant where a node of
-    /// the spline has no value. Flat where the node directions around `p` cancel (a
-    /// ridge between two basins) or vanish.
+    /// the spline has no value (Outside where a corner of the cell has none).
+    #[inline]
+    pub fn vector(&self, p: DVec3) -> Result<DVec3, NoDirection> {
+        match self.spline(p) {
+            Some(g) => Ok(g),
+            None => Ok(self.interpolate(p)?.0),
+        }
+    }
+
+    /// The unit direction of descent of phi at `p`: [`Tile::vector`], normalized. Flat
+    /// where the node directions around `p` cancel (a ridge between two basins) or
+    /// vanish.
     #[inline]
     pub fn direction(&self, p: DVec3) -> Result<DVec3, NoDirection> {
-        let g = match self.spline(p) {
-            Some(g) => g,
-            None => self.interpolate(p)?.0,
-        };
+        let g = self.vector(p)?;
         let n2 = g.length_squared();
         if n2 > 1e-12 {
             return Ok(g * (1.0 / n2.sqrt()));

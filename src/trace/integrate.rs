@@ -41,6 +41,9 @@ impl Default for Rk45 {
     }
 }
 
+/// The largest `h_max` allowed: a tile holds 1.5 h_max + 2 nodes of halo.
+pub const MAX_H_MAX: f64 = 16.0;
+
 impl Rk45 {
     /// Local error per step (voxels) by default for surface seeds: the vertices of a
     /// mesh, whose sphere triangles can be as small as 1e-10 of the sphere. Their
@@ -61,12 +64,7 @@ impl Rk45 {
             },
         }
     }
-}
 
-/// The largest `h_max` allowed: a tile holds 1.5 h_max + 2 nodes of halo.
-pub const MAX_H_MAX: f64 = 16.0;
-
-impl Rk45 {
     /// Why these settings cannot work (naming the `harmap trace` flags), if they cannot.
     #[must_use]
     pub fn problem(&self) -> Option<String> {

@@ -393,7 +393,7 @@ mod tests {
 
     /// The middle tile of a 3 x 3 x 3 tiling with `halo`, built from a linear, positive u
     /// (every node has a value).
-    fn middle_tile(edge: u64, halo: i64) -> (Tiling, Tile) {
+    fn middle_tile(edge: u64, halo: i64) -> Tile {
         let tiling = Tiling {
             grid: [3 * edge; 3],
             edge,
@@ -409,12 +409,11 @@ mod tests {
                 for x in 0..us[2] {
                     let o = u.offset(z, y, x);
                     let g = [z, y, x].map(|c| c as f64);
-                    u.data[o] = 1000.0 + 0.5 * g[2] - 0.25 * g[1] + 0.125 * g[0] + uo[0] as f64;
+                    u.data[o] = 1000.0 + 0.5 * g[2] - 0.25 * g[1] + 0.125 * g[0];
                 }
             }
         }
-        let tile = Tile::from_u(&u, origin, shape);
-        (tiling, tile)
+        Tile::from_u(&u, origin, shape)
     }
 
     /// Every stage point of a step started in a tile's own cells lies within `reach` of
@@ -435,13 +434,13 @@ mod tests {
             let (lo, hi) = (edge as f64, (2 * edge) as f64);
             let below = lo - r;
             let above = f64::from_bits(hi.to_bits() - 1) + r;
-            let (_, tile) = middle_tile(edge, halo);
+            let tile = middle_tile(edge, halo);
             for k in 0..8 {
                 let pick = |b: usize| if k >> b & 1 == 1 { above } else { below };
                 let q = DVec3::new(pick(0), pick(1), pick(2));
                 assert!(tile.spline(q).is_some(), "h_max {h_max}: {q}");
             }
-            let (_, short) = middle_tile(edge, halo - 1);
+            let short = middle_tile(edge, halo - 1);
             assert!(
                 short.spline(DVec3::splat(above)).is_none(),
                 "h_max {h_max}: one node less of halo should not hold the spline"
