@@ -6,9 +6,10 @@
 //! cargo bench --bench flip_causes -- cactus.harmap
 //! ```
 //!
-//! For a solved run whose input is a mesh, it traces the mesh's vertices twice: with the
-//! default integrator (RK45, error control) and with fixed steps of 0.25 and 0.1 voxel (no
-//! error control, so the sphere map is a smooth function of the seed). For each, it
+//! For a solved run whose input is a mesh, it traces the mesh's vertices with the default
+//! integrator for surface seeds (RK45 with error control, then steps on levels of ln u),
+//! on RK45's own steps at atol 1e-8 and 1e-6, and with fixed steps of 0.25 and 0.1 voxel
+//! (no error control, so the sphere map is a smooth function of the seed). For each, it
 //! prints:
 //! - the flipped triangles;
 //! - at their vertices, the local Jacobian of the surface -> sphere map, from two more
@@ -175,12 +176,20 @@ fn main() -> Result<(), harmap::Error> {
     report(
         &run,
         &format!(
-            "RK45, atol {:e} (the default for surface seeds)",
-            default.atol
+            "the default for surface seeds: RK45 at atol {:e}, then levels {} apart in ln u",
+            default.atol, default.level_step
         ),
         default,
     )?;
-    report(&run, "RK45, atol 1e-6", Rk45::default())?;
+    report(
+        &run,
+        &format!("RK45's own steps, atol {:e}", default.atol),
+        Rk45 {
+            level_step: 0.0,
+            ..default
+        },
+    )?;
+    report(&run, "RK45's own steps, atol 1e-6", Rk45::default())?;
     for h in [0.25, 0.1] {
         // An error allowance no step reaches: every step is h_max (an infinite one is
         // refused by the options' check).

@@ -9,9 +9,9 @@ use harmap::grid::MemBudget;
 use harmap::progress::Silent;
 use harmap::run::RunDir;
 use harmap::solve::{solve, SolveOptions};
-use harmap::trace::{read_seeds, trace, SeedKind, SeedTable, TraceOptions, TraceReport};
+use harmap::trace::{read_seeds, trace, Rk45, SeedKind, SeedTable, TraceOptions, TraceReport};
 
-use crate::common::solved_ball;
+use crate::common::{shared_data, solved_ball};
 
 fn run_trace(run: &Path, opts: &TraceOptions) -> (TraceReport, SeedTable) {
     let r = RunDir::open(run).unwrap();
@@ -95,6 +95,13 @@ fn same_table(a: &SeedTable, b: &SeedTable) -> bool {
 fn tables_are_the_same_for_any_threads_tiles_and_budget() {
     let dir = tempfile::tempdir().unwrap();
     let run = solved_ball(dir.path(), 64, 32);
+    // RK45's own steps, and steps on levels of ln u (the default for surface seeds).
+    for level_step in [0.0, Rk45::SURFACE_LEVEL_STEP] {
+        same_tables_with(&run, level_step);
+    }
+}
+
+fn same_tables_with(run: &Path, level_step: f64) {
     let mut tables = Vec::new();
     for (threads, tile, mem) in [
         (2, None, MemBudget::default()),
@@ -113,9 +120,13 @@ fn tables_are_the_same_for_any_threads_tiles_and_budget() {
             tile,
             mem,
             sample: Some(3000),
+            rk: Rk45 {
+                level_step,
+                ..Rk45::default()
+            },
             ..TraceOptions::default()
         };
-        let (rep, t) = pool.install(|| run_trace(&run, &o));
+        let (rep, t) = pool.install(|| run_trace(run, &o));
         tables.push((threads, tile, mem, rep, t));
     }
     let (_, _, _, r0, t0) = &tables[0];
@@ -123,7 +134,7 @@ fn tables_are_the_same_for_any_threads_tiles_and_budget() {
     for (threads, tile, mem, rep, t) in &tables[1..] {
         assert!(
             same_table(t0, t),
-            "{threads} threads, tile {tile:?}, --mem {mem}: table differs"
+            "level step {level_step}, {threads} threads, tile {tile:?}, --mem {mem}: table differs"
         );
         assert_eq!(rep.stops, r0.stops);
     }
@@ -165,6 +176,47 @@ fn every_seed_gets_a_stop_reason() {
     o.rk.max_steps = 2;
     let (rep, _) = run_trace(&run, &o);
     assert_eq!(rep.stops["step_limit"], 200, "{:?}", rep.stops);
+}
+
+/// cactus10k (../shared/data; skipped without it) at resolution 96: the streamlines from
+/// its arms converge to 1e-6 voxel apart. On RK45's own steps hundreds of its triangles
+/// flip on the sphere; stepping on levels of ln u (the default for surface seeds), none.
+#[test]
+fn the_cactus_maps_without_flips_on_levels() {
+    use harmap::pipeline::{voxelize_new_run, Source};
+    use harmap::voxelize::VoxelizeOptions;
+    let Some(path) = shared_data("meshes/cactus10k.obj") else {
+        eprintln!("skipped: ../shared/data/meshes/cactus10k.obj not found");
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("cactus.harmap");
+    let opts = VoxelizeOptions {
+        resolution: Some(96),
+        ..VoxelizeOptions::default()
+    };
+    let iopts = harmap::input::InputOptions::default();
+    voxelize_new_run(&Source::File(&path, &iopts), &opts, &out, true, &Silent).unwrap();
+    let run = RunDir::open(&out).unwrap();
+    let o = SolveOptions {
+        checkpoint_every: 0.0,
+        ..SolveOptions::default()
+    };
+    solve(&run, &o, &AtomicBool::new(false), &Silent).unwrap();
+    let flipped = |level_step: f64| {
+        let mut o = TraceOptions::for_seeds(SeedKind::Surface);
+        o.rk.level_step = level_step;
+        let (rep, _) = run_trace(&out, &o);
+        assert_eq!(rep.stops["reached"], rep.seeds, "{:?}", rep.stops);
+        let m = rep.surface.expect("surface seeds measure the map");
+        assert_eq!(m.measured, m.triangles);
+        m.flipped
+    };
+    let own = flipped(0.0);
+    let levels = flipped(Rk45::SURFACE_LEVEL_STEP);
+    eprintln!("cactus10k at 96: {own} flipped on own steps, {levels} on levels");
+    assert!(own > 100, "{own}: the case no longer shows the problem");
+    assert_eq!(levels, 0);
 }
 
 /// The built-in starfish at resolution 80: thin arms where phi is within 1e-16 of 1, and
@@ -414,6 +466,8 @@ fn integrator_flags_trade_steps_for_accuracy_and_bad_ones_are_refused() {
         ),
         (&["--max-steps", "0"][..], "--max-steps 0"),
         (&["--atol", "inf"][..], "give finite numbers"),
+        (&["--level-step", "2"][..], "--level-step 2: give 0 (off)"),
+        (&["--level-step=-0.05"][..], "--level-step -0.05"),
     ] {
         let mut a = vec!["trace", r];
         a.extend_from_slice(args);

@@ -396,14 +396,7 @@ impl Tracer {
         let lines: Vec<Line> = seeds
             .iter()
             .enumerate()
-            .map(|(i, &p)| Line {
-                id: i as u32,
-                p,
-                h: 0.5_f64.clamp(self.rk.h_min, self.rk.h_max),
-                steps: 0,
-                length: 0.0,
-                escapes: 0,
-            })
+            .map(|(i, &p)| Line::new(i as u32, p, &self.rk))
             .collect();
         trace_tiled(
             &self.u,
