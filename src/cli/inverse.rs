@@ -13,8 +13,11 @@ use super::Global;
 ///
 /// Each point is found by starting on the stop sphere around the center in the
 /// direction (theta, psi) and following the streamline backwards, up phi, until phi is
-/// reached (below the stop sphere: on the ray from the center). This retraces the
-/// streamline a forward trace followed, so inverse(forward(x)) returns to x.
+/// reached (below the stop sphere: on the ray from the center). It undoes the steps of
+/// `harmap map --exact` one by one (they step on levels of ln(1 - phi)), so for
+/// parameters from the exact map inverse(forward(x)) returns to x, even down thin arms
+/// where the map squeezes streamlines 1e-10 together; the last fraction of a voxel
+/// before the boundary is traced uphill.
 ///
 /// IN.csv has a header naming the columns phi, theta and psi (radians; other columns are
 /// ignored). A column u (= 1 - phi, as RUN/u/0 stores it) is used instead of phi when

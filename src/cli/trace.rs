@@ -126,6 +126,7 @@ impl TraceArgs {
                 h_max: self.h_max,
                 max_steps: self.max_steps,
                 level_step: self.level_step.unwrap_or(Rk45::for_seeds(seeds).level_step),
+                level_after: Rk45::for_seeds(seeds).level_after,
             },
         }
     }

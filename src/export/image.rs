@@ -78,6 +78,9 @@ impl Field {
 enum Source {
     F64(crate::grid::ZarrStore<f64>),
     F32(crate::grid::ZarrStore<f32>),
+    /// theta or psi of the exact map, stored in f64, exported in f32 like the upwind
+    /// map's.
+    F64AsF32(crate::grid::ZarrStore<f64>),
     U8(crate::grid::ZarrStore<u8>),
 }
 
@@ -94,7 +97,11 @@ impl Source {
         }
         Ok(match f {
             Field::Phi => Source::F64(run.open_image(f.name())?),
-            Field::Theta | Field::Psi => Source::F32(run.open_image(f.name())?),
+            // The upwind map stores f32, the exact map f64 (docs/format.md).
+            Field::Theta | Field::Psi => match run.open_image::<f32>(f.name()) {
+                Ok(s) => Source::F32(s),
+                Err(_) => Source::F64AsF32(run.open_image(f.name())?),
+            },
             Field::Labels => Source::U8(run.open_image(f.name())?),
         })
     }
@@ -119,6 +126,13 @@ impl Source {
         match self {
             Source::F64(s) => slab(s, spec, bz),
             Source::F32(s) => slab(s, spec, bz),
+            Source::F64AsF32(s) => {
+                let wide = slab(s, spec, bz)?;
+                Ok(wide
+                    .chunks_exact(8)
+                    .flat_map(|b| (<f64 as crate::grid::Scalar>::read_le(b) as f32).to_le_bytes())
+                    .collect())
+            }
             Source::U8(s) => slab(s, spec, bz),
         }
     }
@@ -148,6 +162,7 @@ impl Source {
         match self {
             Source::F64(s) => slab(s, spec, x0, w, |v| g(v, 12)),
             Source::F32(s) => slab(s, spec, x0, w, |v| g(f64::from(v), 8)),
+            Source::F64AsF32(s) => slab(s, spec, x0, w, |v| g(f64::from(v as f32), 8)),
             Source::U8(s) => slab(s, spec, x0, w, |v| v.to_string()),
         }
     }

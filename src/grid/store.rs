@@ -30,6 +30,8 @@ pub trait Scalar:
     fn write_le(self, out: &mut [u8]);
     /// Read from little-endian bytes.
     fn read_le(b: &[u8]) -> Self;
+    /// `v` converted as Rust's `as` does (rounded for floats, saturated for integers).
+    fn from_f64(v: f64) -> Self;
 }
 
 macro_rules! scalar {
@@ -41,6 +43,10 @@ macro_rules! scalar {
             }
             fn read_le(b: &[u8]) -> Self {
                 <$t>::from_le_bytes(b.try_into().expect("slice of SIZE bytes"))
+            }
+            #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
+            fn from_f64(v: f64) -> Self {
+                v as $t
             }
         }
     };

@@ -1,12 +1,15 @@
-//! The inverse map: (phi, theta, psi) -> x, by tracing uphill in phi from the stop ball
-//! along the direction (theta, psi) until phi is reached.
+//! The inverse map: (phi, theta, psi) -> x, from the stop ball along the direction
+//! (theta, psi) back up phi until phi is reached.
 //!
-//! A forward streamline ends where it enters the stop ball, at c + R d(theta, psi); the
-//! inverse starts there and follows the tracer's direction field backwards (up phi)
-//! with classical RK4 steps of a quarter voxel, then places the point where phi is
-//! reached by linear interpolation of u = 1 - phi on the last step. Inside the stop ball
-//! the forward map is the direction from the center, so a phi below the stop sphere's is
-//! found on the ray from the center by bisection.
+//! A forward streamline of the exact map ends where it enters the stop ball, at
+//! c + R d(theta, psi), after steps on levels of ln u (u = 1 - phi). The inverse starts
+//! there and undoes those steps one by one ([`Inverse::undo_levels`]), which returns to
+//! the voxel however much the forward map squeezed its streamlines. Where that stops
+//! (near the boundary, or a streamline that began on its own steps) it follows the
+//! tracer's direction field backwards with classical RK4 steps of a quarter voxel, and
+//! places the point where u is reached by linear interpolation on the last step. Inside
+//! the stop ball the forward map is the direction from the center, so a phi below the
+//! stop sphere's is found on the ray from the center by bisection.
 //!
 //! Out of core: the field is built tile by tile (the tracer's node directions, with a
 //! halo, so a point's value is the same in whichever tile holds it) into a cache bounded
@@ -20,12 +23,19 @@ use glam::DVec3;
 use crate::grid::{BlockStore, GridError, MemBudget};
 use crate::run::RunDir;
 use crate::trace::field::Tile;
-use crate::trace::integrate::StopBall;
+use crate::trace::integrate::{level_step, onto_level, LevelEnd, LevelField, Rk45, StopBall};
 
 /// Step of the uphill integration (voxels).
 const STEP: f64 = 0.25;
 /// Steps allowed per point.
 const MAX_STEPS: usize = 200_000;
+/// Iterations allowed to undo one step on levels.
+const MAX_ITERATIONS: usize = 60;
+/// How close (voxels) an undone step must come back to where the forward step ended.
+const UNDONE: f64 = 1e-9;
+/// Levels closer than this (voxels) are not undone: within a fraction of a voxel of the
+/// boundary, where u falls to 0 and the levels crowd, the rest is traced uphill.
+const MIN_LEVEL_GAP: f64 = 0.02;
 
 /// Where a point of the inverse map is, or why it has none.
 pub type InverseResult = Result<DVec3, String>;
@@ -106,6 +116,15 @@ impl Cursor<'_> {
     }
 }
 
+impl LevelField for Cursor<'_> {
+    fn level(&mut self, q: DVec3) -> Option<(f64, DVec3)> {
+        self.tile(q)?.level(q)
+    }
+    fn velocity(&mut self, q: DVec3) -> Option<DVec3> {
+        self.tile(q)?.level_velocity(q)
+    }
+}
+
 /// A key whose order is a Z (Morton) order of directions: theta and psi cut into 2^16
 /// steps each, their bits interleaved, so nearby directions mostly have nearby keys.
 /// Values outside their ranges (refused later, row by row) are clamped.
@@ -133,6 +152,8 @@ fn direction_key(theta: f64, psi: f64) -> u64 {
 pub struct Inverse {
     tiles: Tiles,
     ball: StopBall,
+    /// The exact map's integrator, whose steps on levels are undone.
+    rk: Rk45,
     origin: DVec3,
     spacing: f64,
 }
@@ -180,6 +201,7 @@ impl Inverse {
                 ),
             },
             ball,
+            rk: super::exact_integrator(),
             origin: DVec3::from_array(spec.origin),
             spacing: spec.spacing,
         })
@@ -237,13 +259,143 @@ impl Inverse {
             }
             c + 0.5 * (lo + hi) * d
         } else {
-            let r = Self::uphill(&mut cur, start, u0, target);
+            let r = match self.undo_levels(&mut cur, start, target) {
+                Some((p, true)) => Ok(p),
+                // Undone part of the way: uphill for the rest.
+                Some((p, false)) => match cur.u(p) {
+                    Some(up) => Self::uphill(&mut cur, p, up, target),
+                    None => Self::uphill(&mut cur, start, u0, target),
+                },
+                None => Self::uphill(&mut cur, start, u0, target),
+            };
             if let Some(e) = cur.error {
                 return Err(format!("reading u failed: {e}"));
             }
             r?
         };
         Ok(self.origin + self.spacing * p)
+    }
+
+    /// The point with u = `target` whose streamline on levels (the exact map's, from the
+    /// point on) enters the stop ball at `e`: the forward steps undone one by one, each
+    /// by a fixed-point iteration on its starting level. None where that does not
+    /// converge (a streamline that stepped on its own in the forward map, near the
+    /// boundary or the stop ball); the caller then traces uphill.
+    ///
+    /// A forward step from x on level k lands on level k + 1 at F(x); given that point y,
+    /// x = P_k(x + y - F(x)) is iterated, P_k taking a point onto level k. F is close to
+    /// a shift along the flow, so this contracts by about the step's share of a voxel
+    /// per iteration. Undone this way, the inverse is the forward map's own inverse to
+    /// round-off, however much the forward map squeezed the streamlines together (down
+    /// a thin arm, by 1e-10 and more); tracing uphill multiplies every error by that
+    /// squeeze.
+    fn undo_levels(&self, cur: &mut Cursor<'_>, e: DVec3, target: f64) -> Option<(DVec3, bool)> {
+        let dl = self.rk.level_step;
+        // u = 0 (the boundary): as far down the levels as they go, then uphill.
+        let lt = if target > 0.0 {
+            target.ln()
+        } else {
+            f64::NEG_INFINITY
+        };
+        let (le, _) = LevelField::level(cur, e)?;
+        // The first level the forward streamline reached, and the last before the ball
+        // (ln u on the chord into the ball lies between that level and the next).
+        let first = (lt / dl).ceil();
+        let last = (le / dl).floor();
+        for k in [last, last - 1.0] {
+            if k < first {
+                continue;
+            }
+            if let Some(p) = self.undo_from(cur, e, k, first, lt) {
+                return Some(p);
+            }
+        }
+        None
+    }
+
+    /// [`Inverse::undo_levels`] with the forward streamline's last level `last` before it
+    /// entered the ball at `e`, and its first, `first`: the point and whether it is the
+    /// answer, or the last level undone (levels closer than [`MIN_LEVEL_GAP`], near the
+    /// boundary, or a step that does not come undone), from which to go uphill.
+    fn undo_from(
+        &self,
+        cur: &mut Cursor<'_>,
+        e: DVec3,
+        last: f64,
+        first: f64,
+        lt: f64,
+    ) -> Option<(DVec3, bool)> {
+        let dl = self.rk.level_step;
+        let (rk, ball) = (&self.rk, &self.ball);
+        // The point on level `last` whose step enters the ball at e.
+        let mut x = onto_level(cur, e, last * dl);
+        x = Self::fixed_point(cur, x, e, last * dl, |cur, x| {
+            Some(match level_step(cur, x, dl, (last + 1.0) * dl, rk, ball)? {
+                LevelEnd::Ball(p) | LevelEnd::Level(p) => p,
+            })
+        })?;
+        // Down the levels to the first.
+        let mut k = last;
+        while k > first {
+            let y = x;
+            let Some(v) = cur.velocity(y) else {
+                return Some((y, false));
+            };
+            if v.length() * dl < MIN_LEVEL_GAP {
+                return Some((y, false));
+            }
+            let start = onto_level(cur, y - dl * v, (k - 1.0) * dl);
+            let below =
+                Self::fixed_point(cur, start, y, (k - 1.0) * dl, |cur, x| {
+                    match level_step(cur, x, dl, k * dl, rk, ball)? {
+                        LevelEnd::Level(p) => Some(p),
+                        LevelEnd::Ball(_) => None,
+                    }
+                });
+            let Some(below) = below else {
+                return Some((y, false));
+            };
+            x = below;
+            k -= 1.0;
+        }
+        // The forward streamline's first, partial step: from u = target to level `first`.
+        let part = first * dl - lt;
+        if part <= 1e-9 * dl {
+            return Some((x, true));
+        }
+        let y = x;
+        let Some(v) = cur.velocity(y) else {
+            return Some((y, false));
+        };
+        let start = onto_level(cur, y - part * v, lt);
+        let x0 = Self::fixed_point(cur, start, y, lt, |cur, x| {
+            let (l, _) = LevelField::level(cur, x)?;
+            match level_step(cur, x, first * dl - l, first * dl, rk, ball)? {
+                LevelEnd::Level(p) => Some(p),
+                LevelEnd::Ball(_) => None,
+            }
+        });
+        Some(x0.map_or((y, false), |p| (p, true)))
+    }
+
+    /// x on level `level` (ln u) with `forward(x) = y`, from `x`: iterate
+    /// x = P(x + y - forward(x)).
+    fn fixed_point(
+        cur: &mut Cursor<'_>,
+        mut x: DVec3,
+        y: DVec3,
+        level: f64,
+        forward: impl Fn(&mut Cursor<'_>, DVec3) -> Option<DVec3>,
+    ) -> Option<DVec3> {
+        for _ in 0..MAX_ITERATIONS {
+            let r = y - forward(cur, x)?;
+            x = onto_level(cur, x + r, level);
+            if r.length() <= 1e-13 * (1.0 + y.abs().max_element()) {
+                return Some(x);
+            }
+        }
+        let r = y - forward(cur, x)?;
+        (r.length() <= UNDONE).then_some(x)
     }
 
     /// Follow the field backwards (up phi, down u) from `p` (u = `up`) to u = `target`.

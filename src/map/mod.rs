@@ -4,8 +4,11 @@
 //!   stop ball, block by block; one visit per block and a few rounds.
 //! - `exact`: a streamline from every voxel with the tracer of `trace` (the reference).
 //!
-//! Both write `RUN/theta/0` and `RUN/psi/0` (f32 radians, NaN outside the solid and where
-//! no direction was found) and record `harmap.stages.map`.
+//! Both write `RUN/theta/0` and `RUN/psi/0` (radians, NaN outside the solid and where no
+//! direction was found) and record `harmap.stages.map`. The upwind map writes f32. The
+//! exact map writes f64: its streamlines step on levels of ln u from the voxel on, so
+//! [`inverse`] can undo them step by step, and down a thin arm neighbouring voxels
+//! differ in direction by less than f32 resolves (1e-10 radians and below).
 
 pub mod inverse;
 pub mod upwind;
@@ -15,7 +18,7 @@ use std::time::Instant;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-use crate::grid::{BlockStore, Compression, GridError, MemBudget, MemStore, ZarrStore};
+use crate::grid::{BlockStore, Compression, GridError, MemBudget, MemStore, Scalar, ZarrStore};
 use crate::math::{volume, Idx3};
 use crate::parallel::map_bounded;
 use crate::progress::Progress;
@@ -23,7 +26,7 @@ use crate::run::RunDir;
 use crate::solve::driver::copy_blocks;
 use crate::trace::integrate::StopBall;
 use crate::trace::stage::{Tracer, LINE_BYTES};
-use crate::trace::{Stop, TraceOptions};
+use crate::trace::{Rk45, SeedKind, Stop, TraceOptions};
 use upwind::{is_target, Directions, TransportStats};
 
 /// How the full-volume map is computed.
@@ -109,13 +112,13 @@ pub fn map(
         source: e,
     })?;
     let threads = rayon::current_num_threads();
-    // The field stays in memory when it takes at most half the budget.
-    let in_memory = Directions::bytes(&spec) <= opts.mem.work_bytes() / 2;
-    let dirs = Directions::create(&scratch, &spec, in_memory)?;
     let t = Instant::now();
-    let angles = Angles::create(run, &spec)?;
-    let (upwind_stats, stops) = match opts.method {
+    let (upwind_stats, stops, seconds_directions, (voxels, mapped)) = match opts.method {
         MapMethod::Upwind => {
+            // The field stays in memory when it takes at most half the budget.
+            let in_memory = Directions::bytes(&spec) <= opts.mem.work_bytes() / 2;
+            let dirs = Directions::create(&scratch, &spec, in_memory)?;
+            let angles = Angles::<f32>::create(run, &spec)?;
             let held = upwind::held_bytes(&spec, &ball)
                 + if in_memory {
                     Directions::bytes(&spec)
@@ -131,7 +134,7 @@ pub fn map(
             let workers = opts.mem.workers(
                 "the upwind map (a block of u, labels and directions per worker)",
                 held + if cached { copies } else { 0 },
-                upwind::worker_bytes(spec.chunk) + Angles::block_bytes(&spec),
+                upwind::worker_bytes(spec.chunk) + Angles::<f32>::block_bytes(&spec),
                 threads,
             )?;
             // A block's angles are written as soon as all its voxels have a direction,
@@ -148,15 +151,18 @@ pub fn map(
             } else {
                 upwind::transport(&u, &labels, &dirs, &ball, workers, progress, Some(&sink))?
             };
-            (Some(s), None)
+            let seconds = t.elapsed().as_secs_f64();
+            let counts = angles.finish(run, &labels, Some(&dirs), opts.mem, progress)?;
+            (Some(s), None, seconds, counts)
         }
-        MapMethod::Exact => (
-            None,
-            Some(exact(run, opts, &labels, &dirs, &ball, progress)?),
-        ),
+        MapMethod::Exact => {
+            let angles = Angles::<f64>::create(run, &spec)?;
+            let stops = exact(run, opts, &labels, &angles, &ball, progress)?;
+            let seconds = t.elapsed().as_secs_f64();
+            let counts = angles.finish(run, &labels, None, opts.mem, progress)?;
+            (None, Some(stops), seconds, counts)
+        }
     };
-    let seconds_directions = t.elapsed().as_secs_f64();
-    let (voxels, mapped) = angles.finish(run, &labels, &dirs, opts.mem, progress)?;
     let _ = std::fs::remove_dir_all(&scratch);
     let report = MapReport {
         method: opts.method,
@@ -173,20 +179,21 @@ pub fn map(
 
 /// theta and psi, written block by block: during the transport as blocks are done,
 /// then the rest.
-struct Angles {
-    theta: ZarrStore<f32>,
-    psi: ZarrStore<f32>,
+struct Angles<T: Scalar> {
+    theta: ZarrStore<T>,
+    psi: ZarrStore<T>,
     /// Which blocks are written.
     written: Vec<std::sync::atomic::AtomicBool>,
     /// Target voxels and those with a direction, over the written blocks.
     counts: std::sync::Mutex<(u64, u64)>,
 }
 
-impl Angles {
+impl<T: Scalar> Angles<T> {
     fn create(run: &RunDir, spec: &crate::grid::GridSpec) -> Result<Self, crate::Error> {
+        let nan = T::from_f64(f64::NAN);
         Ok(Self {
-            theta: run.create_image_staged("theta", spec, f32::NAN, Compression::Zstd(1))?,
-            psi: run.create_image_staged("psi", spec, f32::NAN, Compression::Zstd(1))?,
+            theta: run.create_image_staged("theta", spec, nan, Compression::Zstd(1))?,
+            psi: run.create_image_staged("psi", spec, nan, Compression::Zstd(1))?,
             written: (0..spec.num_blocks())
                 .map(|_| std::sync::atomic::AtomicBool::new(false))
                 .collect(),
@@ -197,25 +204,38 @@ impl Angles {
     /// Bytes [`Angles::write`] holds for a block: theta, psi, and the labels and
     /// directions it is given.
     fn block_bytes(spec: &crate::grid::GridSpec) -> u64 {
-        volume(spec.chunk) * (4 + 4 + 1 + 12)
+        volume(spec.chunk) * (2 * T::SIZE as u64 + 1 + 12)
     }
 
     /// Write block `b` from its labels and its [x, y, z] direction components (all three
     /// zero where a voxel has none).
     fn write(&self, b: Idx3, lab: &[u8], d: &[Vec<f32>; 3]) -> Result<(), GridError> {
-        let mut th = vec![f32::NAN; lab.len()];
-        let mut ps = vec![f32::NAN; lab.len()];
+        self.write_with(b, lab, |i| {
+            let v = [d[0][i], d[1][i], d[2][i]];
+            upwind::is_set(v).then(|| DVec3::from_array(v.map(f64::from)))
+        })
+    }
+
+    /// Write block `b` from its labels and the direction of each voxel, if it has one.
+    fn write_with(
+        &self,
+        b: Idx3,
+        lab: &[u8],
+        dir: impl Fn(usize) -> Option<DVec3>,
+    ) -> Result<(), GridError> {
+        let nan = T::from_f64(f64::NAN);
+        let mut th = vec![nan; lab.len()];
+        let mut ps = vec![nan; lab.len()];
         let (mut n, mut m) = (0, 0);
         for i in 0..lab.len() {
             if !is_target(lab[i]) {
                 continue;
             }
             n += 1;
-            let v = [d[0][i], d[1][i], d[2][i]];
-            if upwind::is_set(v) {
-                let (t, p) = crate::trace::angles(DVec3::from_array(v.map(f64::from)));
-                th[i] = t as f32;
-                ps[i] = p as f32;
+            if let Some(v) = dir(i) {
+                let (t, p) = crate::trace::angles(v);
+                th[i] = T::from_f64(t);
+                ps[i] = T::from_f64(p);
                 m += 1;
             }
         }
@@ -232,13 +252,14 @@ impl Angles {
         Ok(())
     }
 
-    /// Write the blocks not written yet from `dirs`, publish theta and psi, and return
-    /// the counts (target voxels, voxels with a direction).
+    /// Write the blocks not written yet from `dirs` (without directions where there are
+    /// none), publish theta and psi, and return the counts (target voxels, voxels with a
+    /// direction).
     fn finish(
         self,
         run: &RunDir,
         labels: &dyn BlockStore<u8>,
-        dirs: &Directions,
+        dirs: Option<&Directions>,
         mem: MemBudget,
         progress: &dyn Progress,
     ) -> Result<(u64, u64), crate::Error> {
@@ -260,7 +281,10 @@ impl Angles {
         progress.start("map (writing theta, psi)", rest.len() as u64);
         map_bounded(&rest, workers, |&b| -> Result<(), GridError> {
             let lab = labels.read_block(b)?;
-            self.write(b, &lab, &dirs.read(b)?)?;
+            match dirs {
+                Some(d) => self.write(b, &lab, &d.read(b)?)?,
+                None => self.write_with(b, &lab, |_| None)?,
+            }
             progress.advance(1);
             Ok(())
         })?;
@@ -274,8 +298,18 @@ impl Angles {
     }
 }
 
-/// A block of an exact batch: its index, its directions, and (voxel, seed) pairs.
-type BatchBlock = (Idx3, Vec<Option<DVec3>>, Vec<(usize, usize)>);
+/// A block of an exact batch: its index, labels, directions, and (voxel, seed) pairs.
+type BatchBlock = (Idx3, Vec<u8>, Vec<Option<DVec3>>, Vec<(usize, usize)>);
+
+/// The integrator of the exact map, which the inverse map undoes: the surface seeds'
+/// ([`Rk45::for_seeds`]), on levels of ln u from the voxel on.
+#[must_use]
+pub fn exact_integrator() -> Rk45 {
+    Rk45 {
+        level_after: 0.0,
+        ..Rk45::for_seeds(SeedKind::Surface)
+    }
+}
 
 /// The exact map: a streamline from the center of every voxel of the solid outside the
 /// stop ball, in batches of whole blocks that fit the budget.
@@ -283,7 +317,7 @@ fn exact(
     run: &RunDir,
     opts: &MapOptions,
     labels: &dyn BlockStore<u8>,
-    dirs: &Directions,
+    angles: &Angles<f64>,
     ball: &StopBall,
     progress: &dyn Progress,
 ) -> Result<std::collections::BTreeMap<&'static str, u64>, crate::Error> {
@@ -292,6 +326,7 @@ fn exact(
     let topts = TraceOptions {
         stop_radius: Some(ball.radius),
         mem: opts.mem,
+        rk: exact_integrator(),
         ..TraceOptions::default()
     };
     let tracer = Tracer::new(run, &topts, batch_lines)?;
@@ -331,11 +366,11 @@ fn exact(
                     seeds.push(p);
                 }
             }
-            batch.push((b, d, owners));
+            batch.push((b, lab, d, owners));
         }
         if !seeds.is_empty() {
             let (outcomes, _, _) = tracer.trace(&seeds, false, progress)?;
-            for (_, d, owners) in &mut batch {
+            for (_, _, d, owners) in &mut batch {
                 for &(k, s) in owners.iter() {
                     let o = &outcomes[s];
                     *stops.get_mut(o.stop.name()).expect("reason") += 1;
@@ -346,8 +381,8 @@ fn exact(
                 }
             }
         }
-        for (b, d, _) in &batch {
-            dirs.write(*b, d)?;
+        for (b, lab, d, _) in &batch {
+            angles.write_with(*b, lab, |i| d[i])?;
         }
     }
     Ok(stops)

@@ -33,6 +33,14 @@ pub struct Rk45 {
     /// neighbouring streamlines stay level with each other (see [`advance`]).
     #[serde(default)]
     pub level_step: f64,
+    /// Arc length (voxels) on RK45's own steps before a streamline steps on levels
+    /// ([`LEVEL_AFTER`] by default; 0 for seeds inside the solid, as the exact map's).
+    #[serde(default = "level_after")]
+    pub level_after: f64,
+}
+
+fn level_after() -> f64 {
+    LEVEL_AFTER
 }
 
 impl Default for Rk45 {
@@ -44,6 +52,7 @@ impl Default for Rk45 {
             h_max: 2.0,
             max_steps: 20_000,
             level_step: 0.0,
+            level_after: LEVEL_AFTER,
         }
     }
 }
@@ -123,6 +132,12 @@ impl Rk45 {
             return Some(format!(
                 "--level-step {}: give 0 (off) or a step in ln u from {MIN_LEVEL_STEP} to {MAX_LEVEL_STEP}",
                 self.level_step
+            ));
+        }
+        if self.level_after < 0.0 {
+            return Some(format!(
+                "level_after {}: give a length of zero or more",
+                self.level_after
             ));
         }
         if self.max_steps == 0 {
@@ -223,7 +238,7 @@ impl Line {
             length: 0.0,
             escapes: 0,
             level: None,
-            level_from: LEVEL_AFTER,
+            level_from: rk.level_after,
         }
     }
 }
@@ -355,6 +370,11 @@ pub fn advance(
 ) -> Advance {
     if let Some(e) = ball.entry(line.p, line.p) {
         return Advance::Done(Stop::Reached, e);
+    }
+    // A seed may start on levels where it is (level_after 0); a line that moved here on
+    // its own steps was tried where it is already, with the same answer.
+    if line.steps == 0 && line.level.is_none() && rk.level_step > 0.0 && line.level_from <= 0.0 {
+        start_levels(line, tile, rk);
     }
     loop {
         let leg = if line.level.is_some() {
@@ -565,8 +585,7 @@ fn on_levels(
     ball: &StopBall,
     mut path: Option<&mut Vec<DVec3>>,
 ) -> Leg {
-    let reach = rk.reach();
-    let velocity = |q: DVec3| tile.level_velocity(q);
+    let mut field = tile;
     loop {
         if line.steps >= rk.max_steps {
             return Leg::Ended(Advance::Done(Stop::StepLimit, line.p));
@@ -575,44 +594,12 @@ fn on_levels(
             return Leg::Switch;
         };
         let p = line.p;
-        let Some(k1) = velocity(p) else {
+        let Some((mut q, d)) = level_substep(&mut field, p, line.h, rk) else {
             return leave_levels(line, rk);
         };
-        // The ln u of this step: the rest of the way to the level, or as much as keeps the
-        // step within h_max voxels.
-        let d = line.h.min(rk.h_max / k1.length());
-        let stage = |q: DVec3| {
-            if (q - p).abs().max_element() > reach {
-                None
-            } else {
-                velocity(q)
-            }
-        };
-        let Some(k2) = stage(p + (0.5 * d) * k1) else {
-            return leave_levels(line, rk);
-        };
-        let Some(k3) = stage(p + (0.5 * d) * k2) else {
-            return leave_levels(line, rk);
-        };
-        let Some(k4) = stage(p + d * k3) else {
-            return leave_levels(line, rk);
-        };
-        let mut q = p + (d / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
-        if (q - p).abs().max_element() > reach {
-            return leave_levels(line, rk);
-        }
         let rest = line.h - d;
-        if rest <= 1e-9 * rk.level_step {
-            // On the level: two Newton steps along grad(ln u) take the point onto it.
-            let target = f64::from(level) * rk.level_step;
-            for _ in 0..2 {
-                let Some((l, g)) = tile.level(q) else { break };
-                let m = (l - target) / g.length_squared();
-                if !m.is_finite() || (m * g).length() > 0.5 {
-                    break;
-                }
-                q -= m * g;
-            }
+        if finishes_level(rest, rk) {
+            q = onto_level(&mut field, q, f64::from(level) * rk.level_step);
             line.level = level.checked_add(1);
             line.h = rk.level_step;
         } else {
@@ -634,6 +621,109 @@ fn on_levels(
             return Leg::Ended(Advance::Moved);
         }
     }
+}
+
+/// What stepping on levels reads: ln u and the velocity per unit of ln u
+/// ([`Tile::level`], [`Tile::level_velocity`]), from one tile or from whichever tile
+/// holds the point (the values are the same).
+pub trait LevelField {
+    /// ln u and its gradient at `q`.
+    fn level(&mut self, q: DVec3) -> Option<(f64, DVec3)>;
+    /// dx / d(ln u) along the streamline through `q`.
+    fn velocity(&mut self, q: DVec3) -> Option<DVec3>;
+}
+
+impl LevelField for &Tile {
+    fn level(&mut self, q: DVec3) -> Option<(f64, DVec3)> {
+        Tile::level(self, q)
+    }
+    fn velocity(&mut self, q: DVec3) -> Option<DVec3> {
+        self.level_velocity(q)
+    }
+}
+
+/// One classic RK4 step on levels from `p`, over `rest` of ln u or as much of it as
+/// keeps the step within h_max voxels: the new point and the ln u stepped. None where
+/// a stage has no velocity or strays more than [`Rk45::reach`] from `p`.
+pub fn level_substep<F: LevelField>(
+    f: &mut F,
+    p: DVec3,
+    rest: f64,
+    rk: &Rk45,
+) -> Option<(DVec3, f64)> {
+    let reach = rk.reach();
+    let mut stage = |q: DVec3| {
+        if (q - p).abs().max_element() > reach {
+            None
+        } else {
+            f.velocity(q)
+        }
+    };
+    let k1 = stage(p)?;
+    let d = rest.min(rk.h_max / k1.length());
+    let k2 = stage(p + (0.5 * d) * k1)?;
+    let k3 = stage(p + (0.5 * d) * k2)?;
+    let k4 = stage(p + d * k3)?;
+    let q = p + (d / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
+    ((q - p).abs().max_element() <= reach).then_some((q, d))
+}
+
+/// Whether `rest` of ln u left after a sub-step means the level is reached.
+#[must_use]
+pub fn finishes_level(rest: f64, rk: &Rk45) -> bool {
+    rest <= 1e-9 * rk.level_step
+}
+
+/// `q` moved onto ln u = `target` by two Newton steps along grad(ln u) (each skipped
+/// where it would move more than half a voxel, or where ln u has no value).
+pub fn onto_level<F: LevelField>(f: &mut F, mut q: DVec3, target: f64) -> DVec3 {
+    for _ in 0..2 {
+        let Some((l, g)) = f.level(q) else { break };
+        let m = (l - target) / g.length_squared();
+        if !m.is_finite() || (m * g).length() > 0.5 {
+            break;
+        }
+        q -= m * g;
+    }
+    q
+}
+
+/// Where a streamline on levels ends up: on its level, or entering the ball.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LevelEnd {
+    /// On the level (ln u = target).
+    Level(DVec3),
+    /// The point where it entered the stop ball.
+    Ball(DVec3),
+}
+
+/// The sub-steps of [`on_levels`] from `p`, `rest` of ln u short of the level `target`
+/// (ln u), without the tiles: where the streamline lands on that level, or where it
+/// enters `ball` first. What the inverse map undoes.
+pub fn level_step<F: LevelField>(
+    f: &mut F,
+    mut p: DVec3,
+    mut rest: f64,
+    target: f64,
+    rk: &Rk45,
+    ball: &StopBall,
+) -> Option<LevelEnd> {
+    for _ in 0..1000 {
+        let (mut q, d) = level_substep(f, p, rest, rk)?;
+        rest -= d;
+        let done = finishes_level(rest, rk);
+        if done {
+            q = onto_level(f, q, target);
+        }
+        if let Some(e) = ball.entry(p, q) {
+            return Some(LevelEnd::Ball(e));
+        }
+        if done {
+            return Some(LevelEnd::Level(q));
+        }
+        p = q;
+    }
+    None
 }
 
 #[cfg(test)]
