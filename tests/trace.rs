@@ -95,13 +95,21 @@ fn same_table(a: &SeedTable, b: &SeedTable) -> bool {
 fn tables_are_the_same_for_any_threads_tiles_and_budget() {
     let dir = tempfile::tempdir().unwrap();
     let run = solved_ball(dir.path(), 64, 32);
-    // RK45's own steps, and steps on levels of ln u (the default for surface seeds).
-    for level_step in [0.0, Rk45::SURFACE_LEVEL_STEP] {
-        same_tables_with(&run, level_step);
+    // RK45's own steps, steps on levels of ln u after 2 voxels (the default for surface
+    // seeds), and on levels from the seed on (the exact map's).
+    for rk in [
+        Rk45::default(),
+        Rk45 {
+            level_step: Rk45::SURFACE_LEVEL_STEP,
+            ..Rk45::default()
+        },
+        harmap::map::exact_integrator(),
+    ] {
+        same_tables_with(&run, rk);
     }
 }
 
-fn same_tables_with(run: &Path, level_step: f64) {
+fn same_tables_with(run: &Path, rk: Rk45) {
     let mut tables = Vec::new();
     for (threads, tile, mem) in [
         (2, None, MemBudget::default()),
@@ -120,10 +128,7 @@ fn same_tables_with(run: &Path, level_step: f64) {
             tile,
             mem,
             sample: Some(3000),
-            rk: Rk45 {
-                level_step,
-                ..Rk45::default()
-            },
+            rk,
             ..TraceOptions::default()
         };
         let (rep, t) = pool.install(|| run_trace(run, &o));
@@ -134,7 +139,7 @@ fn same_tables_with(run: &Path, level_step: f64) {
     for (threads, tile, mem, rep, t) in &tables[1..] {
         assert!(
             same_table(t0, t),
-            "level step {level_step}, {threads} threads, tile {tile:?}, --mem {mem}: table differs"
+            "{rk:?}, {threads} threads, tile {tile:?}, --mem {mem}: table differs"
         );
         assert_eq!(rep.stops, r0.stops);
     }

@@ -98,10 +98,13 @@ impl Source {
         Ok(match f {
             Field::Phi => Source::F64(run.open_image(f.name())?),
             // The upwind map stores f32, the exact map f64 (docs/format.md).
-            Field::Theta | Field::Psi => match run.open_image::<f32>(f.name()) {
-                Ok(s) => Source::F32(s),
-                Err(_) => Source::F64AsF32(run.open_image(f.name())?),
-            },
+            Field::Theta | Field::Psi => {
+                if run.image_data_type(f.name())? == "float64" {
+                    Source::F64AsF32(run.open_image(f.name())?)
+                } else {
+                    Source::F32(run.open_image(f.name())?)
+                }
+            }
             Field::Labels => Source::U8(run.open_image(f.name())?),
         })
     }

@@ -116,6 +116,22 @@ impl Cursor<'_> {
     }
 }
 
+/// `q` moved onto the trilinear u = `target` by Newton steps along its gradient (each
+/// skipped where it would move more than half a voxel).
+fn onto_u(cur: &mut Cursor<'_>, mut q: DVec3, target: f64) -> DVec3 {
+    for _ in 0..3 {
+        let Some((u, g)) = cur.tile(q).and_then(|t| t.u_trilinear(q)) else {
+            break;
+        };
+        let m = (u - target) / g.length_squared();
+        if !m.is_finite() || (m * g).length() > 0.5 {
+            break;
+        }
+        q -= m * g;
+    }
+    q
+}
+
 impl LevelField for Cursor<'_> {
     fn level(&mut self, q: DVec3) -> Option<(f64, DVec3)> {
         self.tile(q)?.level(q)
@@ -201,7 +217,11 @@ impl Inverse {
                 ),
             },
             ball,
-            rk: super::exact_integrator(),
+            // The exact map's integrator as it recorded it, or today's.
+            rk: attrs
+                .pointer("/stages/map/result/integrator")
+                .and_then(|v| serde_json::from_value(v.clone()).ok())
+                .unwrap_or_else(super::exact_integrator),
             origin: DVec3::from_array(spec.origin),
             spacing: spec.spacing,
         })
@@ -221,8 +241,8 @@ impl Inverse {
         if !(0.0..=1.0).contains(&u) {
             return Err(format!("u = 1 - phi = {u} is outside [0, 1]"));
         }
-        // The map stores theta in f32, whose pi (3.1415927410...) is above f64's: the
-        // pole as written must come back.
+        // The upwind map stores theta in f32, whose pi (3.1415927410...) is above f64's:
+        // the pole as written must come back.
         let top = f64::from(std::f32::consts::PI);
         if !(0.0..=top).contains(&theta) || !psi.is_finite() {
             return Err(format!(
@@ -298,15 +318,16 @@ impl Inverse {
             f64::NEG_INFINITY
         };
         let (le, _) = LevelField::level(cur, e)?;
-        // The first level the forward streamline reached, and the last before the ball
-        // (ln u on the chord into the ball lies between that level and the next).
+        // The last level before the ball (ln u on the chord into the ball lies between
+        // it and the next), and the first the forward streamline reached, as far as the
+        // row's u tells (its voxel's ln u is the spline's, which may be a level off).
         let first = (lt / dl).ceil();
         let last = (le / dl).floor();
         for k in [last, last - 1.0] {
             if k < first {
                 continue;
             }
-            if let Some(p) = self.undo_from(cur, e, k, first, lt) {
+            if let Some(p) = self.undo_from(cur, e, k, first, target) {
                 return Some(p);
             }
         }
@@ -323,73 +344,119 @@ impl Inverse {
         e: DVec3,
         last: f64,
         first: f64,
-        lt: f64,
+        target: f64,
     ) -> Option<(DVec3, bool)> {
         let dl = self.rk.level_step;
         let (rk, ball) = (&self.rk, &self.ball);
+        let into_ball =
+            |cur: &mut Cursor<'_>, x: DVec3| level_step(cur, x, dl, (last + 1.0) * dl, rk, ball);
         // The point on level `last` whose step enters the ball at e.
-        let mut x = onto_level(cur, e, last * dl);
-        x = Self::fixed_point(cur, x, e, last * dl, |cur, x| {
-            Some(match level_step(cur, x, dl, (last + 1.0) * dl, rk, ball)? {
-                LevelEnd::Ball(p) | LevelEnd::Level(p) => p,
-            })
-        })?;
-        // Down the levels to the first.
-        let mut k = last;
+        let start = onto_level(cur, e, last * dl);
+        let x = Self::fixed_point(
+            cur,
+            start,
+            e,
+            |cur, x| onto_level(cur, x, last * dl),
+            |cur, x| match into_ball(cur, x)? {
+                LevelEnd::Ball(p) | LevelEnd::Level(p) => Some(p),
+            },
+        )?;
+        if !matches!(into_ball(cur, x)?, LevelEnd::Ball(_)) {
+            return None;
+        }
+        // Down the levels to the first; `above` is the point one level up.
+        let (mut x, mut k, mut above) = (x, last, None);
         while k > first {
-            let y = x;
-            let Some(v) = cur.velocity(y) else {
-                return Some((y, false));
+            let Some(below) = self.undo_level(cur, x, k) else {
+                return Some((x, false));
             };
-            if v.length() * dl < MIN_LEVEL_GAP {
-                return Some((y, false));
-            }
-            let start = onto_level(cur, y - dl * v, (k - 1.0) * dl);
-            let below =
-                Self::fixed_point(cur, start, y, (k - 1.0) * dl, |cur, x| {
-                    match level_step(cur, x, dl, k * dl, rk, ball)? {
-                        LevelEnd::Level(p) => Some(p),
-                        LevelEnd::Ball(_) => None,
-                    }
-                });
-            let Some(below) = below else {
-                return Some((y, false));
+            (above, x, k) = (Some(x), below, k - 1.0);
+        }
+        // The forward streamline's first, partial step, from its voxel (where the
+        // trilinear u is the row's) to the first level above the spline's ln u there:
+        // one level below or above `first` when the two straddle a level.
+        let mut answer = None;
+        for _ in 0..2 {
+            let Some(x0) = self.undo_partial(cur, x, k, target) else {
+                break;
             };
-            x = below;
-            k -= 1.0;
-        }
-        // The forward streamline's first, partial step: from u = target to level `first`.
-        let part = first * dl - lt;
-        if part <= 1e-9 * dl {
-            return Some((x, true));
-        }
-        let y = x;
-        let Some(v) = cur.velocity(y) else {
-            return Some((y, false));
-        };
-        let start = onto_level(cur, y - part * v, lt);
-        let x0 = Self::fixed_point(cur, start, y, lt, |cur, x| {
-            let (l, _) = LevelField::level(cur, x)?;
-            match level_step(cur, x, first * dl - l, first * dl, rk, ball)? {
-                LevelEnd::Level(p) => Some(p),
-                LevelEnd::Ball(_) => None,
+            answer = Some(x0);
+            let Some((l0, _)) = LevelField::level(cur, x0) else {
+                break;
+            };
+            let f0 = (l0 / dl).ceil();
+            if f0 < k {
+                let Some(below) = self.undo_level(cur, x, k) else {
+                    break;
+                };
+                (above, x, k) = (Some(x), below, k - 1.0);
+            } else if f0 > k {
+                let Some(a) = above.take() else { break };
+                (x, k) = (a, k + 1.0);
+            } else {
+                break;
             }
-        });
-        Some(x0.map_or((y, false), |p| (p, true)))
+        }
+        Some(answer.map_or((x, false), |p| (p, true)))
     }
 
-    /// x on level `level` (ln u) with `forward(x) = y`, from `x`: iterate
-    /// x = P(x + y - forward(x)).
+    /// The point on level `k - 1` whose step lands on `y` (on level `k`), unless the
+    /// levels there are closer than [`MIN_LEVEL_GAP`] or the step does not come undone.
+    fn undo_level(&self, cur: &mut Cursor<'_>, y: DVec3, k: f64) -> Option<DVec3> {
+        let dl = self.rk.level_step;
+        let (rk, ball) = (&self.rk, &self.ball);
+        let v = cur.velocity(y)?;
+        if v.length() * dl < MIN_LEVEL_GAP {
+            return None;
+        }
+        let below = (k - 1.0) * dl;
+        let start = onto_level(cur, y - dl * v, below);
+        Self::fixed_point(
+            cur,
+            start,
+            y,
+            |cur, x| onto_level(cur, x, below),
+            |cur, x| match level_step(cur, x, dl, k * dl, rk, ball)? {
+                LevelEnd::Level(p) => Some(p),
+                LevelEnd::Ball(_) => None,
+            },
+        )
+    }
+
+    /// The point where the trilinear u is `target` whose first, partial step (from the
+    /// spline's ln u there to level `k`) lands on `y`.
+    fn undo_partial(&self, cur: &mut Cursor<'_>, y: DVec3, k: f64, target: f64) -> Option<DVec3> {
+        let dl = self.rk.level_step;
+        let (rk, ball) = (&self.rk, &self.ball);
+        let v = cur.velocity(y)?;
+        let start = onto_u(cur, y - (k * dl - target.ln()).max(0.0) * v, target);
+        Self::fixed_point(
+            cur,
+            start,
+            y,
+            |cur, x| onto_u(cur, x, target),
+            |cur, x| {
+                let (l, _) = LevelField::level(cur, x)?;
+                match level_step(cur, x, (k * dl - l).max(0.0), k * dl, rk, ball)? {
+                    LevelEnd::Level(p) => Some(p),
+                    LevelEnd::Ball(_) => None,
+                }
+            },
+        )
+    }
+
+    /// x with `forward(x) = y`, from `x`: iterate x = project(x + y - forward(x)), where
+    /// `project` takes a point onto the surface x must lie on.
     fn fixed_point(
         cur: &mut Cursor<'_>,
         mut x: DVec3,
         y: DVec3,
-        level: f64,
+        project: impl Fn(&mut Cursor<'_>, DVec3) -> DVec3,
         forward: impl Fn(&mut Cursor<'_>, DVec3) -> Option<DVec3>,
     ) -> Option<DVec3> {
         for _ in 0..MAX_ITERATIONS {
             let r = y - forward(cur, x)?;
-            x = onto_level(cur, x + r, level);
+            x = project(cur, x + r);
             if r.length() <= 1e-13 * (1.0 + y.abs().max_element()) {
                 return Some(x);
             }

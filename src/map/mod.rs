@@ -72,6 +72,9 @@ pub struct MapReport {
     /// Seconds spent computing directions (upwind: with the theta and psi of the blocks
     /// written as they are done, that is nearly all of them).
     pub seconds_directions: f64,
+    /// The integrator of the exact map's streamlines, which `harmap inverse` undoes.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub integrator: Option<Rk45>,
 }
 
 /// Compute the map of `run` and write `RUN/theta/0` and `RUN/psi/0`.
@@ -170,6 +173,7 @@ pub fn map(
         mapped,
         stop_radius: ball.radius,
         upwind: upwind_stats,
+        integrator: stops.is_some().then(exact_integrator),
         stops,
         seconds_directions,
     };

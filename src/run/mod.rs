@@ -492,6 +492,27 @@ impl RunDir {
         Ok(())
     }
 
+    /// The Zarr data type of image `name` (`float32`, `float64`, `uint8`, ...).
+    pub fn image_data_type(&self, name: &str) -> Result<String, crate::Error> {
+        let path = self.root.join(name).join("0").join("zarr.json");
+        let text = fs::read_to_string(&path).map_err(io(&path))?;
+        let meta: Value =
+            serde_json::from_str(&text).map_err(|e| crate::grid::GridError::Zarr {
+                path: path.display().to_string(),
+                message: e.to_string(),
+            })?;
+        meta.get("data_type")
+            .and_then(Value::as_str)
+            .map(str::to_owned)
+            .ok_or_else(|| {
+                crate::grid::GridError::Zarr {
+                    path: path.display().to_string(),
+                    message: "no data_type".into(),
+                }
+                .into()
+            })
+    }
+
     /// Open the array of image `name`.
     pub fn open_image<T: Scalar>(&self, name: &str) -> Result<ZarrStore<T>, crate::Error> {
         let spec = self.grid()?;

@@ -424,6 +424,33 @@ impl Tile {
         best.map(|b| b.1)
     }
 
+    /// The trilinear interpolant of the stored u at `p` and its gradient, in f64, if every
+    /// corner of the cell has a value: u between the nodes as the map's and the inverse
+    /// map's rows give it (at a node, the node's own u).
+    #[must_use]
+    pub fn u_trilinear(&self, p: DVec3) -> Option<(f64, DVec3)> {
+        let [lz, ly, lx] = self.cell(p)?;
+        let t = [
+            p.x - (lx as i64 + self.origin[2]) as f64,
+            p.y - (ly as i64 + self.origin[1]) as f64,
+            p.z - (lz as i64 + self.origin[0]) as f64,
+        ];
+        let (sy, sx) = (self.shape[1], self.shape[2]);
+        let base = (lz * sy + ly) * sx + lx;
+        let (mut u, mut g) = (0.0, DVec3::ZERO);
+        for c in 0..8usize {
+            let [dx, dy, dz] = [c & 1, (c >> 1) & 1, c >> 2];
+            let v = f64::from(self.nodes[base + dz * sy * sx + dy * sx + dx].w);
+            // Per axis: weight t or 1 - t, derivative +1 or -1.
+            let w = |a: usize, d: usize| if d == 1 { t[a] } else { 1.0 - t[a] };
+            let s = |d: usize| if d == 1 { 1.0 } else { -1.0 };
+            let (wx, wy, wz) = (w(0, dx), w(1, dy), w(2, dz));
+            u += wx * wy * wz * v;
+            g += DVec3::new(s(dx) * wy * wz, wx * s(dy) * wz, wx * wy * s(dz)) * v;
+        }
+        (!u.is_nan()).then_some((u, g))
+    }
+
     /// The gradient of the trilinear interpolant of u at `p`.
     fn trilinear_gradient(&self, p: DVec3) -> Result<DVec3, NoDirection> {
         let [lz, ly, lx] = self.cell(p).ok_or(NoDirection::Outside)?;
@@ -644,6 +671,29 @@ mod tests {
 
     /// A node without a value among the spline's 27 but not at a corner of the cell:
     /// the trilinear interpolant is used.
+    #[test]
+    fn trilinear_u_is_exact_for_linear_u_and_the_node_value_at_a_node() {
+        let u = |x: f64, y: f64, z: f64| 0.3 + 0.02 * x - 0.05 * y + 0.01 * z;
+        let tile = Tile::from_u(&grid(12, u), [0; 3], [12; 3]);
+        for p in [
+            DVec3::new(4.0, 5.0, 6.0),
+            DVec3::new(4.3, 5.9, 6.45),
+            DVec3::new(7.99, 2.01, 3.5),
+        ] {
+            let (v, g) = tile.u_trilinear(p).unwrap();
+            // The tile keeps u in f32.
+            assert!((v - u(p.x, p.y, p.z)).abs() < 1e-7, "{p}: {v}");
+            assert!(
+                (g - DVec3::new(0.02, -0.05, 0.01)).length() < 1e-7,
+                "{p}: {g}"
+            );
+        }
+        let n = DVec3::new(4.0, 5.0, 6.0);
+        let node = tile.u_trilinear(n).unwrap().0;
+        assert_eq!(node.to_bits(), f64::from(u(n.x, n.y, n.z) as f32).to_bits());
+        assert!(tile.u_trilinear(DVec3::new(11.5, 1.0, 1.0)).is_none());
+    }
+
     #[test]
     fn a_missing_spline_node_falls_back_to_trilinear() {
         let mut t = noisy(8);

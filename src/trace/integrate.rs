@@ -57,8 +57,8 @@ impl Default for Rk45 {
     }
 }
 
-/// The smallest nonzero [`Rk45::level_step`]: levels are counted in i32, and ln u of an
-/// f32 u is above -104.
+/// The smallest nonzero [`Rk45::level_step`]: levels are counted in i32, and ln u of the
+/// f64 spline of u is above -746 where it is positive.
 pub const MIN_LEVEL_STEP: f64 = 1e-4;
 /// The largest [`Rk45::level_step`].
 pub const MAX_LEVEL_STEP: f64 = 1.0;
@@ -80,8 +80,8 @@ impl Rk45 {
     pub const SURFACE_ATOL: f64 = 1e-8;
 
     /// Step in ln u by default for surface seeds, which step on levels: cactus10k at
-    /// resolution 128 has no flipped triangle with it (1,779 without), at about 430
-    /// steps per line; 0.02 gives the same counts at 2.4 times the steps.
+    /// resolution 128 has no flipped triangle with it (1,779 without), at 419 steps per
+    /// line; 0.02 gives the same counts at 2.4 times the steps.
     pub const SURFACE_LEVEL_STEP: f64 = 0.05;
 
     /// The default integrator for `seeds`: [`Rk45::default`], with an atol of
@@ -591,19 +591,19 @@ fn on_levels(
             return Leg::Ended(Advance::Done(Stop::StepLimit, line.p));
         }
         let Some(level) = line.level else {
-            return Leg::Switch;
-        };
-        let p = line.p;
-        let Some((mut q, d)) = level_substep(&mut field, p, line.h, rk) else {
             return leave_levels(line, rk);
         };
-        let rest = line.h - d;
-        if finishes_level(rest, rk) {
-            q = onto_level(&mut field, q, f64::from(level) * rk.level_step);
+        let p = line.p;
+        let target = f64::from(level) * rk.level_step;
+        let Some((q, left, landed)) = level_advance(&mut field, p, line.h, target, rk) else {
+            return leave_levels(line, rk);
+        };
+        if landed {
+            // (None only past i32::MAX: the next round leaves the levels.)
             line.level = level.checked_add(1);
             line.h = rk.level_step;
         } else {
-            line.h = rest;
+            line.h = left;
         }
         line.steps += 1;
         line.length += (q - p).length();
@@ -668,6 +668,26 @@ pub fn level_substep<F: LevelField>(
     ((q - p).abs().max_element() <= reach).then_some((q, d))
 }
 
+/// One sub-step on levels from `p`, `rest` of ln u short of the level `target` (ln u),
+/// landed on the level by [`onto_level`] when it reaches it: the new point, the ln u
+/// left, and whether it landed. The one sequence both [`on_levels`] and
+/// [`level_step`] (which the inverse map undoes) take, so that they agree to the bit.
+pub fn level_advance<F: LevelField>(
+    f: &mut F,
+    p: DVec3,
+    rest: f64,
+    target: f64,
+    rk: &Rk45,
+) -> Option<(DVec3, f64, bool)> {
+    let (q, d) = level_substep(f, p, rest, rk)?;
+    let left = rest - d;
+    if finishes_level(left, rk) {
+        Some((onto_level(f, q, target), left, true))
+    } else {
+        Some((q, left, false))
+    }
+}
+
 /// Whether `rest` of ln u left after a sub-step means the level is reached.
 #[must_use]
 pub fn finishes_level(rest: f64, rk: &Rk45) -> bool {
@@ -709,19 +729,14 @@ pub fn level_step<F: LevelField>(
     ball: &StopBall,
 ) -> Option<LevelEnd> {
     for _ in 0..1000 {
-        let (mut q, d) = level_substep(f, p, rest, rk)?;
-        rest -= d;
-        let done = finishes_level(rest, rk);
-        if done {
-            q = onto_level(f, q, target);
-        }
+        let (q, left, landed) = level_advance(f, p, rest, target, rk)?;
         if let Some(e) = ball.entry(p, q) {
             return Some(LevelEnd::Ball(e));
         }
-        if done {
+        if landed {
             return Some(LevelEnd::Level(q));
         }
-        p = q;
+        (p, rest) = (q, left);
     }
     None
 }

@@ -416,7 +416,7 @@ impl Tracer {
 }
 
 /// Bytes a streamline in flight holds (queues, outcome, ordering).
-pub const LINE_BYTES: u64 = 160;
+pub const LINE_BYTES: u64 = 176;
 
 /// Trace the seeds of `run` (see [`trace`]) and return them without writing anything.
 pub fn trace_seeds(
