@@ -4,7 +4,6 @@
 
 use std::fmt::Write as _;
 use std::path::Path;
-use std::sync::atomic::AtomicBool;
 
 use glam::DVec3;
 use harmap::grid::{BlockStore, GridSpec, MemBudget};
@@ -12,7 +11,6 @@ use harmap::map::{map, MapMethod, MapOptions, MapReport};
 use harmap::pipeline::standard_ball_run;
 use harmap::progress::Silent;
 use harmap::run::RunDir;
-use harmap::solve::{solve, SolveOptions};
 use harmap::voxelize::StandardBall;
 
 use crate::common::solved_ball;
@@ -203,35 +201,10 @@ fn the_map_needs_a_solved_run() {
 /// Spot at resolution 96: the upwind map against a streamline from every voxel.
 #[test]
 fn upwind_agrees_with_exact_tracing_on_spot() {
-    let Some(mesh) = crate::common::shared_data("meshes/spot.obj") else {
-        eprintln!("skipped: ../shared/data/meshes/spot.obj not found");
+    let dir = tempfile::tempdir().unwrap();
+    let Some(run) = crate::common::solved_mesh(dir.path(), "spot.obj", 96) else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let run = dir.path().join("spot.harmap");
-    let opts = harmap::voxelize::VoxelizeOptions {
-        resolution: Some(96),
-        ..harmap::voxelize::VoxelizeOptions::default()
-    };
-    let iopts = harmap::input::InputOptions::default();
-    harmap::pipeline::voxelize_new_run(
-        &harmap::pipeline::Source::File(&mesh, &iopts),
-        &opts,
-        &run,
-        false,
-        &Silent,
-    )
-    .unwrap();
-    solve(
-        &RunDir::open(&run).unwrap(),
-        &SolveOptions {
-            checkpoint_every: 0.0,
-            ..SolveOptions::default()
-        },
-        &AtomicBool::new(false),
-        &Silent,
-    )
-    .unwrap();
     let exact_run = dir.path().join("spot-exact.harmap");
     copy_dir(&run, &exact_run);
     let rep = run_map(&run, MapMethod::Upwind, MemBudget::default());
@@ -397,36 +370,10 @@ fn the_inverse_of_the_exact_map_returns_to_the_voxel() {
 /// off (p99 17). Undoing the exact map's steps on levels comes back to the voxel.
 #[test]
 fn the_inverse_undoes_the_exact_map_down_the_cactus_arms() {
-    let Some(mesh) = crate::common::shared_data("meshes/cactus10k.obj") else {
-        eprintln!("skipped: ../shared/data/meshes/cactus10k.obj not found");
+    let dir = tempfile::tempdir().unwrap();
+    let Some(run) = crate::common::solved_mesh(dir.path(), "cactus10k.obj", 96) else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let run = dir.path().join("cactus.harmap");
-    let opts = harmap::voxelize::VoxelizeOptions {
-        resolution: Some(96),
-        ..harmap::voxelize::VoxelizeOptions::default()
-    };
-    let iopts = harmap::input::InputOptions::default();
-    harmap::pipeline::voxelize_new_run(
-        &harmap::pipeline::Source::File(&mesh, &iopts),
-        &opts,
-        &run,
-        false,
-        &Silent,
-    )
-    .unwrap();
-    let o = SolveOptions {
-        checkpoint_every: 0.0,
-        ..SolveOptions::default()
-    };
-    solve(
-        &RunDir::open(&run).unwrap(),
-        &o,
-        &AtomicBool::new(false),
-        &Silent,
-    )
-    .unwrap();
     run_map(&run, MapMethod::Exact, MemBudget::default());
     let mut t = round_trip(&run, 3000, 80 << 20);
     let (p50, p99) = (quantile(&mut t.all, 0.5), quantile(&mut t.all, 0.99));

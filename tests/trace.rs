@@ -11,7 +11,7 @@ use harmap::run::RunDir;
 use harmap::solve::{solve, SolveOptions};
 use harmap::trace::{read_seeds, trace, Rk45, SeedKind, SeedTable, TraceOptions, TraceReport};
 
-use crate::common::{shared_data, solved_ball};
+use crate::common::solved_ball;
 
 fn run_trace(run: &Path, opts: &TraceOptions) -> (TraceReport, SeedTable) {
     let r = RunDir::open(run).unwrap();
@@ -188,26 +188,10 @@ fn every_seed_gets_a_stop_reason() {
 /// flip on the sphere; stepping on levels of ln u (the default for surface seeds), none.
 #[test]
 fn the_cactus_maps_without_flips_on_levels() {
-    use harmap::pipeline::{voxelize_new_run, Source};
-    use harmap::voxelize::VoxelizeOptions;
-    let Some(path) = shared_data("meshes/cactus10k.obj") else {
-        eprintln!("skipped: ../shared/data/meshes/cactus10k.obj not found");
+    let dir = tempfile::tempdir().unwrap();
+    let Some(out) = crate::common::solved_mesh(dir.path(), "cactus10k.obj", 96) else {
         return;
     };
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("cactus.harmap");
-    let opts = VoxelizeOptions {
-        resolution: Some(96),
-        ..VoxelizeOptions::default()
-    };
-    let iopts = harmap::input::InputOptions::default();
-    voxelize_new_run(&Source::File(&path, &iopts), &opts, &out, true, &Silent).unwrap();
-    let run = RunDir::open(&out).unwrap();
-    let o = SolveOptions {
-        checkpoint_every: 0.0,
-        ..SolveOptions::default()
-    };
-    solve(&run, &o, &AtomicBool::new(false), &Silent).unwrap();
     let flipped = |level_step: f64| {
         let mut o = TraceOptions::for_seeds(SeedKind::Surface);
         o.rk.level_step = level_step;

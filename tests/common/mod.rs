@@ -157,6 +157,30 @@ pub fn shared_data(rel: &str) -> Option<PathBuf> {
     p.exists().then_some(p)
 }
 
+/// A mesh of ../shared/data voxelized at `resolution` and solved, in `dir`; None
+/// (after saying so) when the data folder is absent.
+pub fn solved_mesh(dir: &Path, name: &str, resolution: u64) -> Option<PathBuf> {
+    let Some(mesh) = shared_data(&format!("meshes/{name}")) else {
+        eprintln!("skipped: ../shared/data/meshes/{name} not found");
+        return None;
+    };
+    let run = dir.join(format!("{name}.harmap"));
+    let opts = harmap::voxelize::VoxelizeOptions {
+        resolution: Some(resolution),
+        ..harmap::voxelize::VoxelizeOptions::default()
+    };
+    let iopts = harmap::input::InputOptions::default();
+    let source = harmap::pipeline::Source::File(&mesh, &iopts);
+    harmap::pipeline::voxelize_new_run(&source, &opts, &run, false, &Silent).unwrap();
+    let o = harmap::solve::SolveOptions {
+        checkpoint_every: 0.0,
+        ..harmap::solve::SolveOptions::default()
+    };
+    let r = harmap::run::RunDir::open(&run).unwrap();
+    harmap::solve::solve(&r, &o, &AtomicBool::new(false), &Silent).unwrap();
+    Some(run)
+}
+
 /// Small deterministic pseudo-random numbers (SplitMix64) for sampling.
 pub struct Rng(pub u64);
 
