@@ -115,6 +115,7 @@ impl TraceArgs {
             SeedArg::Boundary => SeedKind::Boundary,
             SeedArg::Surface => SeedKind::Surface,
         };
+        let default = Rk45::for_seeds(seeds);
         TraceOptions {
             seeds,
             sample: self.sample,
@@ -122,13 +123,13 @@ impl TraceArgs {
             tile: self.tile,
             mem: self.mem,
             rk: Rk45 {
-                atol: self.atol.unwrap_or(Rk45::for_seeds(seeds).atol),
+                atol: self.atol.unwrap_or(default.atol),
                 rtol: self.rtol,
                 h_min: self.h_min,
                 h_max: self.h_max,
                 max_steps: self.max_steps,
-                level_step: self.level_step.unwrap_or(Rk45::for_seeds(seeds).level_step),
-                level_after: Rk45::for_seeds(seeds).level_after,
+                level_step: self.level_step.unwrap_or(default.level_step),
+                level_after: default.level_after,
             },
         }
     }

@@ -416,10 +416,7 @@ impl Inverse {
             start,
             y,
             |cur, x| onto_level(cur, x, below),
-            |cur, x| match level_step(cur, x, dl, k * dl, rk, ball)? {
-                LevelEnd::Level(p) => Some(p),
-                LevelEnd::Ball(_) => None,
-            },
+            |cur, x| level_step(cur, x, dl, k * dl, rk, ball)?.on_level(),
         )
     }
 
@@ -437,10 +434,7 @@ impl Inverse {
             |cur, x| onto_u(cur, x, target),
             |cur, x| {
                 let (l, _) = LevelField::level(cur, x)?;
-                match level_step(cur, x, (k * dl - l).max(0.0), k * dl, rk, ball)? {
-                    LevelEnd::Level(p) => Some(p),
-                    LevelEnd::Ball(_) => None,
-                }
+                level_step(cur, x, (k * dl - l).max(0.0), k * dl, rk, ball)?.on_level()
             },
         )
     }

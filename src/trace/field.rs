@@ -259,6 +259,33 @@ impl Tile {
         }
     }
 
+    /// Offsets between neighbouring nodes along z, y and x in `nodes`.
+    #[inline]
+    fn strides(&self) -> [usize; 3] {
+        [self.shape[1] * self.shape[2], self.shape[2], 1]
+    }
+
+    /// The quadratic B-spline's nodes at `p`: the index of the first of the 3 x 3 x 3
+    /// nodes around the node nearest `p`, and `p`'s offset from that node along z, y and
+    /// x (in [-1/2, 1/2)), if the tile holds all 27.
+    #[inline]
+    fn stencil(&self, p: DVec3) -> Option<(usize, [f64; 3])> {
+        let c = [p.z, p.y, p.x];
+        let strides = self.strides();
+        let mut base = 0usize;
+        let mut t = [0.0; 3];
+        for a in 0..3 {
+            let n = floor(c[a] + 0.5);
+            let l = n - self.origin[a];
+            if l < 1 || l + 1 >= self.shape[a] as i64 {
+                return None;
+            }
+            base += (l as usize - 1) * strides[a];
+            t[a] = c[a] - n as f64;
+        }
+        Some((base, t))
+    }
+
     /// The tensor-product quadratic B-spline of the node directions at `p` (not unit
     /// length), if the tile holds the 3 x 3 x 3 nodes around the node nearest `p` and
     /// all have a value. Per axis, with t = p - n in [-1/2, 1/2) from the nearest node n,
@@ -268,22 +295,13 @@ impl Tile {
     #[inline]
     #[must_use]
     pub fn spline(&self, p: DVec3) -> Option<DVec3> {
-        let c = [p.z, p.y, p.x];
-        let mut base = 0usize;
-        let mut w = [[0.0f32; 3]; 3];
-        let strides = [self.shape[1] * self.shape[2], self.shape[2], 1];
-        for a in 0..3 {
-            let n = floor(c[a] + 0.5);
-            let l = n - self.origin[a];
-            if l < 1 || l + 1 >= self.shape[a] as i64 {
-                return None;
-            }
-            base += (l as usize - 1) * strides[a];
-            let t = (c[a] - n as f64) as f32;
+        let (base, t) = self.stencil(p)?;
+        let strides = self.strides();
+        let [wz, wy, wx] = t.map(|t| {
+            let t = t as f32;
             let (lo, hi) = (0.5 - t, 0.5 + t);
-            w[a] = [0.5 * lo * lo, 0.75 - t * t, 0.5 * hi * hi];
-        }
-        let [wz, wy, wx] = w;
+            [0.5 * lo * lo, 0.75 - t * t, 0.5 * hi * hi]
+        });
         let n = &self.nodes;
         let mut acc = Vec4::ZERO;
         for (dz, &a) in wz.iter().enumerate() {
@@ -312,23 +330,15 @@ impl Tile {
     /// evaluation by about 1e-8, differently for each.
     #[must_use]
     fn level_spline(&self, p: DVec3) -> Option<LevelSpline> {
-        let c = [p.z, p.y, p.x];
-        let mut base = 0usize;
+        let (base, t) = self.stencil(p)?;
+        let strides = self.strides();
         let mut w = [[0.0f64; 3]; 3];
         let mut dw = [[0.0f64; 3]; 3];
-        let strides = [self.shape[1] * self.shape[2], self.shape[2], 1];
         for a in 0..3 {
-            let n = floor(c[a] + 0.5);
-            let l = n - self.origin[a];
-            if l < 1 || l + 1 >= self.shape[a] as i64 {
-                return None;
-            }
-            base += (l as usize - 1) * strides[a];
-            let t = c[a] - n as f64;
-            let (lo, hi) = (0.5 - t, 0.5 + t);
-            w[a] = [0.5 * lo * lo, 0.75 - t * t, 0.5 * hi * hi];
+            let (lo, hi) = (0.5 - t[a], 0.5 + t[a]);
+            w[a] = [0.5 * lo * lo, 0.75 - t[a] * t[a], 0.5 * hi * hi];
             // d/dt of the weights.
-            dw[a] = [-lo, -2.0 * t, hi];
+            dw[a] = [-lo, -2.0 * t[a], hi];
         }
         let mut dir = DVec3::ZERO;
         let (mut u, mut gx, mut gy, mut gz) = (0.0, 0.0, 0.0, 0.0);

@@ -146,6 +146,13 @@ impl Rk45 {
         None
     }
 
+    /// The first step a streamline tries, and tries again after an escape or on leaving
+    /// the levels (voxels).
+    #[must_use]
+    pub fn first_h(&self) -> f64 {
+        0.5_f64.clamp(self.h_min, self.h_max)
+    }
+
     /// The error a step of length `h` may make.
     #[inline]
     #[must_use]
@@ -233,7 +240,7 @@ impl Line {
         Self {
             id,
             p,
-            h: 0.5_f64.clamp(rk.h_min, rk.h_max),
+            h: rk.first_h(),
             steps: 0,
             length: 0.0,
             escapes: 0,
@@ -344,6 +351,17 @@ fn owns(lo: [i64; 3], hi: [i64; 3], p: DVec3) -> bool {
     (0..3).all(|a| c[a] >= lo[a] && c[a] < hi[a])
 }
 
+/// What both ways of stepping work with: the tile, its core `[lo, hi)`, the integrator
+/// and the stop ball (see [`advance`]).
+#[derive(Clone, Copy)]
+struct Core<'a> {
+    tile: &'a Tile,
+    lo: [i64; 3],
+    hi: [i64; 3],
+    rk: &'a Rk45,
+    ball: &'a StopBall,
+}
+
 /// How one way of stepping left a streamline.
 enum Leg {
     /// As [`advance`] returns it.
@@ -373,14 +391,21 @@ pub fn advance(
     }
     // A seed may start on levels where it is (level_after 0); a line that moved here on
     // its own steps was tried where it is already, with the same answer.
-    if line.steps == 0 && line.level.is_none() && rk.level_step > 0.0 && line.level_from <= 0.0 {
+    if line.steps == 0 && may_start_levels(line, rk) {
         start_levels(line, tile, rk);
     }
+    let core = Core {
+        tile,
+        lo,
+        hi,
+        rk,
+        ball,
+    };
     loop {
         let leg = if line.level.is_some() {
-            on_levels(line, tile, lo, hi, rk, ball, path.as_deref_mut())
+            on_levels(line, &core, path.as_deref_mut())
         } else {
-            on_own_steps(line, tile, lo, hi, rk, ball, path.as_deref_mut())
+            on_own_steps(line, &core, path.as_deref_mut())
         };
         if let Leg::Ended(a) = leg {
             return a;
@@ -390,15 +415,14 @@ pub fn advance(
 
 /// RK45 steps with error control, until the streamline ends, leaves the tile's core or
 /// may step on levels.
-fn on_own_steps(
-    line: &mut Line,
-    tile: &Tile,
-    lo: [i64; 3],
-    hi: [i64; 3],
-    rk: &Rk45,
-    ball: &StopBall,
-    mut path: Option<&mut Vec<DVec3>>,
-) -> Leg {
+fn on_own_steps(line: &mut Line, core: &Core<'_>, mut path: Option<&mut Vec<DVec3>>) -> Leg {
+    let Core {
+        tile,
+        lo,
+        hi,
+        rk,
+        ball,
+    } = *core;
     let reach = rk.reach();
     let field = |q: DVec3| -> Result<DVec3, NoDirection> { tile.direction(q) };
     // Where the solid is one or two voxels thick, every voxel is boundary: phi is exactly
@@ -416,18 +440,10 @@ fn on_own_steps(
             };
             let from = line.p;
             line.escapes += 1;
-            line.steps += 1;
-            line.length += (q - from).length();
-            line.p = q;
-            line.h = 0.5_f64.clamp(rk.h_min, rk.h_max);
-            if let Some(en) = ball.entry(from, q) {
-                if let Some(path) = path.as_deref_mut() {
-                    path.push(en);
-                }
+            move_to(line, q);
+            line.h = rk.first_h();
+            if let Some(en) = arrive(from, q, ball, path.as_deref_mut()) {
                 return Leg::Ended(Advance::Done(Stop::Reached, en));
-            }
-            if let Some(path) = path.as_deref_mut() {
-                path.push(q);
             }
             if !owns(lo, hi, q) {
                 return Leg::Ended(Advance::Moved);
@@ -505,9 +521,7 @@ fn on_own_steps(
             continue;
         }
         let from = line.p;
-        line.steps += 1;
-        line.length += (q - from).length();
-        line.p = q;
+        move_to(line, q);
         line.h = (h * factor).clamp(rk.h_min, rk.h_max);
         k1 = k[6];
         // Zigzagging across a one-voxel sheet with tiny steps is stalling too.
@@ -517,17 +531,10 @@ fn on_own_steps(
             k1 = escape_or_stop!(NoDirection::Flat);
             continue;
         }
-        if let Some(e) = ball.entry(from, q) {
-            if let Some(path) = path.as_deref_mut() {
-                path.push(e);
-            }
+        if let Some(e) = arrive(from, q, ball, path.as_deref_mut()) {
             return Leg::Ended(Advance::Done(Stop::Reached, e));
         }
-        if let Some(path) = path.as_deref_mut() {
-            path.push(q);
-        }
-        let leveled =
-            rk.level_step > 0.0 && line.length >= line.level_from && start_levels(line, tile, rk);
+        let leveled = may_start_levels(line, rk) && start_levels(line, tile, rk);
         if !owns(lo, hi, q) {
             return Leg::Ended(Advance::Moved);
         }
@@ -535,6 +542,29 @@ fn on_own_steps(
             return Leg::Switch;
         }
     }
+}
+
+/// Count a step of `line` to `q` and take it.
+fn move_to(line: &mut Line, q: DVec3) {
+    line.steps += 1;
+    line.length += (q - line.p).length();
+    line.p = q;
+}
+
+/// After a step `from -> q`: where it enters the ball, if it does (the streamline ends
+/// there). The entry, or else `q`, goes on the path.
+fn arrive(from: DVec3, q: DVec3, ball: &StopBall, path: Option<&mut Vec<DVec3>>) -> Option<DVec3> {
+    let entry = ball.entry(from, q);
+    if let Some(path) = path {
+        path.push(entry.unwrap_or(q));
+    }
+    entry
+}
+
+/// Whether `line` may go on levels where it is: not on them yet, levels on, and far
+/// enough along.
+fn may_start_levels(line: &Line, rk: &Rk45) -> bool {
+    line.level.is_none() && rk.level_step > 0.0 && line.length >= line.level_from
 }
 
 /// Put `line` on levels, heading to the first level at or above ln u at its point, if
@@ -558,7 +588,7 @@ fn start_levels(line: &mut Line, tile: &Tile, rk: &Rk45) -> bool {
 fn leave_levels(line: &mut Line, rk: &Rk45) -> Leg {
     line.level = None;
     line.level_from = line.length + LEVEL_AFTER;
-    line.h = 0.5_f64.clamp(rk.h_min, rk.h_max);
+    line.h = rk.first_h();
     Leg::Switch
 }
 
@@ -576,16 +606,8 @@ fn leave_levels(line: &mut Line, rk: &Rk45) -> Leg {
 /// the same level, so neighbours differ only across the flow, and the numbers that
 /// decide their order there are computed relative to their separation (cactus10k: none
 /// flipped).
-fn on_levels(
-    line: &mut Line,
-    tile: &Tile,
-    lo: [i64; 3],
-    hi: [i64; 3],
-    rk: &Rk45,
-    ball: &StopBall,
-    mut path: Option<&mut Vec<DVec3>>,
-) -> Leg {
-    let mut field = tile;
+fn on_levels(line: &mut Line, core: &Core<'_>, mut path: Option<&mut Vec<DVec3>>) -> Leg {
+    let (rk, mut field) = (core.rk, core.tile);
     loop {
         if line.steps >= rk.max_steps {
             return Leg::Ended(Advance::Done(Stop::StepLimit, line.p));
@@ -605,19 +627,11 @@ fn on_levels(
         } else {
             line.h = left;
         }
-        line.steps += 1;
-        line.length += (q - p).length();
-        line.p = q;
-        if let Some(e) = ball.entry(p, q) {
-            if let Some(path) = path.as_deref_mut() {
-                path.push(e);
-            }
+        move_to(line, q);
+        if let Some(e) = arrive(p, q, core.ball, path.as_deref_mut()) {
             return Leg::Ended(Advance::Done(Stop::Reached, e));
         }
-        if let Some(path) = path.as_deref_mut() {
-            path.push(q);
-        }
-        if !owns(lo, hi, q) {
+        if !owns(core.lo, core.hi, q) {
             return Leg::Ended(Advance::Moved);
         }
     }
@@ -717,6 +731,17 @@ pub enum LevelEnd {
     Ball(DVec3),
 }
 
+impl LevelEnd {
+    /// The point on the level, if the streamline got there before the ball.
+    #[must_use]
+    pub fn on_level(self) -> Option<DVec3> {
+        match self {
+            LevelEnd::Level(p) => Some(p),
+            LevelEnd::Ball(_) => None,
+        }
+    }
+}
+
 /// The sub-steps of [`on_levels`] from `p`, `rest` of ln u short of the level `target`
 /// (ln u), without the tiles: where the streamline lands on that level, or where it
 /// enters `ball` first. What the inverse map undoes.
@@ -769,6 +794,24 @@ mod tests {
         radial(n, c, |r| 1000.0 - r)
     }
 
+    /// Trace from `start` over the whole `n`^3 tile, which must bring the line into the
+    /// ball: the line and its entry point. Accepted points go on `path`.
+    fn reach(
+        tile: &Tile,
+        n: usize,
+        ball: &StopBall,
+        rk: &Rk45,
+        start: DVec3,
+        path: &mut Vec<DVec3>,
+    ) -> (Line, DVec3) {
+        let mut line = Line::new(0, start, rk);
+        let r = advance(&mut line, tile, [0; 3], [n as i64; 3], rk, ball, Some(path));
+        let Advance::Done(Stop::Reached, end) = r else {
+            panic!("{r:?}")
+        };
+        (line, end)
+    }
+
     #[test]
     fn rays_of_a_cone_reach_the_center_along_straight_lines() {
         let n = 40;
@@ -784,20 +827,7 @@ mod tests {
             DVec3::new(5.5, 33.1, 8.25),
             DVec3::new(20.1, 4.0, 36.0),
         ] {
-            let mut line = Line::new(0, start, &Rk45::default());
-            let mut path = Vec::new();
-            let r = advance(
-                &mut line,
-                &tile,
-                [0; 3],
-                [n as i64; 3],
-                &rk,
-                &ball,
-                Some(&mut path),
-            );
-            let Advance::Done(Stop::Reached, end) = r else {
-                panic!("{r:?}")
-            };
+            let (line, end) = reach(&tile, n, &ball, &rk, start, &mut Vec::new());
             assert!(((end - c).length() - 3.0).abs() < 1e-9);
             let angle = (end - c).normalize().angle_between((start - c).normalize());
             // Node gradients of a cone are not exactly radial; well inside they are close.
@@ -823,20 +853,8 @@ mod tests {
             ..Rk45::default()
         };
         for start in [DVec3::new(35.2, 21.0, 19.5), DVec3::new(5.5, 33.1, 8.25)] {
-            let mut line = Line::new(0, start, &rk);
             let mut path = vec![start];
-            let r = advance(
-                &mut line,
-                &tile,
-                [0; 3],
-                [n as i64; 3],
-                &rk,
-                &ball,
-                Some(&mut path),
-            );
-            let Advance::Done(Stop::Reached, end) = r else {
-                panic!("{r:?}")
-            };
+            let (line, end) = reach(&tile, n, &ball, &rk, start, &mut path);
             let angle = (end - c).normalize().angle_between((start - c).normalize());
             assert!(angle.to_degrees() < 0.5, "{} degrees", angle.to_degrees());
             // Own steps for the first LEVEL_AFTER voxels, then on levels: every point
