@@ -34,6 +34,7 @@ use harmap::trace::integrate::Rk45;
 use harmap::trace::metrics::{orientation, singular_values};
 use harmap::trace::seeds::SeedKind;
 use harmap::trace::stage::{trace_seeds, TraceOptions, Tracer};
+use harmap::trace::surface::Boundary;
 
 /// Offset (voxels) of the two extra seeds around each vertex.
 const D: f64 = 1e-4;
@@ -120,7 +121,9 @@ fn report(run: &RunDir, name: &str, rk: Rk45) -> Result<(), harmap::Error> {
     let shape = spec.shape.map(|n| n as usize);
     let (uo, us) = Tile::u_box([0; 3], shape);
     let ublock = harmap::grid::BlockStore::read_region(&u, uo, us, f64::NAN)?;
-    let tile = Tile::from_u(&ublock, [0; 3], shape);
+    // The field the lines followed: boundary values from the mesh.
+    let boundary = Boundary::of_mesh(mesh, &spec, 0);
+    let tile = Tile::from_u(&ublock, [0; 3], shape, boundary.index());
     let weakest: Vec<f64> = paths
         .iter()
         .map(|p| {

@@ -105,11 +105,19 @@ fn tables_are_the_same_for_any_threads_tiles_and_budget() {
         },
         harmap::map::exact_integrator(),
     ] {
-        same_tables_with(&run, rk);
+        same_tables_with(&run, rk, SeedKind::Boundary, MemBudget(30 << 20));
+    }
+    // A mesh input: boundary values from the mesh's nearest points, which tiles of any
+    // size, and any order of queries, must find alike.
+    let star = solved_starfish(dir.path());
+    for seeds in [SeedKind::Boundary, SeedKind::Surface] {
+        same_tables_with(&star, Rk45::for_seeds(seeds), seeds, MemBudget(52 << 20));
     }
 }
 
-fn same_tables_with(run: &Path, rk: Rk45) {
+/// The tables of `run`'s `seeds` on `rk` for 1 and 2 threads, two tile sizes, and a
+/// `small` budget that evicts tiles of 16.
+fn same_tables_with(run: &Path, rk: Rk45, seeds: SeedKind, small: MemBudget) {
     let mut tables = Vec::new();
     for (threads, tile, mem) in [
         (2, None, MemBudget::default()),
@@ -118,7 +126,7 @@ fn same_tables_with(run: &Path, rk: Rk45) {
         (2, Some(24), MemBudget::default()),
         // Room for a few tiles of 16 (two or three, beside what building them holds) and
         // eight chunks: tiles are evicted and built again, as checked below.
-        (2, Some(16), MemBudget(30 << 20)),
+        (2, Some(16), small),
     ] {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -129,6 +137,7 @@ fn same_tables_with(run: &Path, rk: Rk45) {
             mem,
             sample: Some(3000),
             rk,
+            seeds,
             ..TraceOptions::default()
         };
         let (rep, t) = pool.install(|| run_trace(run, &o));
@@ -406,6 +415,77 @@ fn a_sphere_maps_onto_the_sphere_without_flips_and_exports_whole_files() {
         .filter(|e| e.file_name().to_string_lossy().contains("partial"))
         .collect();
     assert!(left.is_empty(), "{left:?}");
+
+    // The field took the boundary's depths from the mesh. Without the mesh (moved
+    // away), boundary seeds still trace, on the smoothed voxel solid, with a warning
+    // that says so; surface seeds cannot.
+    let boundary = |r: &Path| {
+        let a = RunDir::open(r).unwrap().attrs().unwrap();
+        a["stages"]["trace"]["result"]["boundary"].clone()
+    };
+    assert_eq!(boundary(&run), "input mesh");
+    std::fs::rename(&mesh_path, d.path().join("moved.obj")).unwrap();
+    let o = harmap(&["trace", r, "--progress", "never"]);
+    ok(&o);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("mesh is gone") && err.contains("smoothed voxel solid"),
+        "{err}"
+    );
+    assert_eq!(boundary(&run), "smoothed voxel solid");
+    let o = harmap(&["trace", r, "--seeds", "surface"]);
+    assert_eq!(o.status.code(), Some(2));
+}
+
+/// spot (../shared/data; skipped without it) at resolution 96. Where its horns meet the
+/// head, boundary values from the smoothed voxel solid fold the field: the seeds there
+/// slide along the surface and 26 triangles flip. With the mesh's own depths and
+/// normals at the boundary nodes, none does.
+#[test]
+fn spot_maps_without_flips_on_the_mesh_boundary() {
+    use harmap::trace::integrate::Stop;
+    use harmap::trace::stage::Tracer;
+    use harmap::trace::surface::Boundary;
+    let dir = tempfile::tempdir().unwrap();
+    let Some(out) = crate::common::solved_mesh(dir.path(), "spot.obj", 96) else {
+        return;
+    };
+    let opts = TraceOptions::for_seeds(SeedKind::Surface);
+    let (rep, _) = run_trace(&out, &opts);
+    assert_eq!(rep.boundary, "input mesh");
+    assert_eq!(rep.stops["reached"], rep.seeds, "{:?}", rep.stops);
+    let m = rep.surface.expect("surface seeds measure the map");
+    assert_eq!(m.measured, m.triangles);
+
+    // The same seeds on the smoothed solid's boundary values.
+    let run = RunDir::open(&out).unwrap();
+    let spec = run.grid().unwrap();
+    let mesh = harmap::trace::seeds::input_surface(&run.attrs().unwrap())
+        .unwrap()
+        .unwrap();
+    let seeds: Vec<DVec3> = mesh
+        .vertices
+        .iter()
+        .map(|&v| spec.world_to_voxel(v))
+        .collect();
+    let tracer =
+        Tracer::with_boundary(&run, &opts, seeds.len() as u64, Boundary::default()).unwrap();
+    let (ends, _, _) = tracer.trace(&seeds, false, &Silent).unwrap();
+    let c = tracer.ball.center;
+    let sphere: Vec<Option<DVec3>> = ends
+        .iter()
+        .map(|o| (o.stop == Stop::Reached).then(|| (o.end - c).normalize()))
+        .collect();
+    let smoothed = harmap::trace::metrics::surface(&mesh.vertices, &mesh.triangles, &sphere);
+    eprintln!(
+        "spot at 96: {} flipped on the mesh boundary, {} on the smoothed solid's",
+        m.flipped, smoothed.flipped
+    );
+    assert!(
+        smoothed.flipped > 10,
+        "the case no longer shows the problem"
+    );
+    assert_eq!(m.flipped, 0);
 }
 
 /// The integrator's flags: a looser tolerance, absolute or per voxel of step, takes

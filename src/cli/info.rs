@@ -242,6 +242,12 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
             v["mean_steps"].as_f64().unwrap_or(f64::NAN),
             v["stop_radius"]
         )?;
+        if let Some(b) = v.get("boundary").and_then(Value::as_str) {
+            writeln!(
+                out,
+                "field:    boundary nodes' sub-voxel values from the {b}"
+            )?;
+        }
         writeln!(
             out,
             "sphere:   {} seeds within {} degrees of a seed more than {} voxels away",

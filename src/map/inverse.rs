@@ -24,6 +24,7 @@ use crate::grid::{BlockStore, GridError, MemBudget};
 use crate::run::RunDir;
 use crate::trace::field::Tile;
 use crate::trace::integrate::{level_step, onto_level, LevelEnd, LevelField, Rk45, StopBall};
+use crate::trace::surface::Boundary;
 
 /// Step of the uphill integration (voxels).
 const STEP: f64 = 0.25;
@@ -47,6 +48,7 @@ struct Tiles {
     edge: u64,
     halo: i64,
     cache: std::sync::Mutex<crate::trace::tiles::Lru<Tile>>,
+    boundary: Boundary,
 }
 
 impl Tiles {
@@ -74,7 +76,7 @@ impl Tiles {
         });
         let (u_origin, u_shape) = Tile::u_box(origin, shape);
         let block = self.u.read_region(u_origin, u_shape, f64::NAN)?;
-        let tile = Arc::new(Tile::from_u(&block, origin, shape));
+        let tile = Arc::new(Tile::from_u(&block, origin, shape, self.boundary.index()));
         self.cache.lock().expect("lock").put(k, tile.clone());
         Ok(tile)
     }
@@ -193,7 +195,10 @@ impl Inverse {
         let tile_bytes = Tile::bytes(side);
         let build = Tile::build_bytes(side) + 8 * crate::math::volume(spec.chunk) * 8;
         let threads = rayon::current_num_threads() as u64;
-        let avail = mem.work_bytes().saturating_sub(threads * build);
+        let boundary = Boundary::for_run(&attrs, &spec, mem);
+        let avail = mem
+            .work_bytes()
+            .saturating_sub(threads * build + boundary.bytes());
         let cap = avail / tile_bytes;
         if cap < threads + 1 {
             let need = (threads + 1) * tile_bytes + threads * build;
@@ -215,6 +220,7 @@ impl Inverse {
                 cache: std::sync::Mutex::new(
                     crate::trace::tiles::Lru::new(cap.min(total) as usize),
                 ),
+                boundary,
             },
             ball,
             // The exact map's integrator as it recorded it, or today's.
@@ -225,6 +231,13 @@ impl Inverse {
             origin: DVec3::from_array(spec.origin),
             spacing: spec.spacing,
         })
+    }
+
+    /// Where the field's boundary values come from (with a problem to warn about when
+    /// the input mesh could not be read).
+    #[must_use]
+    pub fn boundary(&self) -> &Boundary {
+        &self.tiles.boundary
     }
 
     /// The world point with `(phi, theta, psi)`, or why there is none.
@@ -580,6 +593,9 @@ pub fn inverse_csv(
         .pointer("/stages/trace/options/stop_radius")
         .and_then(serde_json::Value::as_f64);
     let inv = Inverse::new(run, stop_radius, mem)?;
+    if let Some(problem) = &inv.boundary().problem {
+        progress.warn(problem);
+    }
     progress.start("inverse", rows.len() as u64);
     // In the Z order of their directions, so consecutive points climb through the same
     // tiles; results go back to the rows' order. (Bands of theta swept in psi went round

@@ -26,6 +26,7 @@ use crate::run::RunDir;
 use crate::solve::driver::copy_blocks;
 use crate::trace::integrate::StopBall;
 use crate::trace::stage::{Tracer, LINE_BYTES};
+use crate::trace::surface::Boundary;
 use crate::trace::{Rk45, SeedKind, Stop, TraceOptions};
 use upwind::{is_target, Directions, TransportStats};
 
@@ -72,6 +73,9 @@ pub struct MapReport {
     /// Seconds spent computing directions (upwind: with the theta and psi of the blocks
     /// written as they are done, that is nearly all of them).
     pub seconds_directions: f64,
+    /// Where the direction field's boundary values came from
+    /// ([`crate::trace::surface::Boundary::name`]).
+    pub boundary: &'static str,
     /// The integrator of the exact map's streamlines, which `harmap inverse` undoes.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub integrator: Option<Rk45>,
@@ -114,6 +118,10 @@ pub fn map(
         path: scratch.clone(),
         source: e,
     })?;
+    let boundary = Boundary::for_run(&attrs, &spec, opts.mem);
+    if let Some(problem) = &boundary.problem {
+        progress.warn(problem);
+    }
     let threads = rayon::current_num_threads();
     let t = Instant::now();
     let (upwind_stats, stops, seconds_directions, (voxels, mapped)) = match opts.method {
@@ -123,6 +131,7 @@ pub fn map(
             let dirs = Directions::create(&scratch, &spec, in_memory)?;
             let angles = Angles::<f32>::create(run, &spec)?;
             let held = upwind::held_bytes(&spec, &ball)
+                + boundary.bytes()
                 + if in_memory {
                     Directions::bytes(&spec)
                 } else {
@@ -150,9 +159,27 @@ pub fn map(
                 );
                 copy_blocks(&u, &mu, workers)?;
                 copy_blocks(&labels, &ml, workers)?;
-                upwind::transport(&mu, &ml, &dirs, &ball, workers, progress, Some(&sink))?
+                upwind::transport(
+                    &mu,
+                    boundary.index(),
+                    &ml,
+                    &dirs,
+                    &ball,
+                    workers,
+                    progress,
+                    Some(&sink),
+                )?
             } else {
-                upwind::transport(&u, &labels, &dirs, &ball, workers, progress, Some(&sink))?
+                upwind::transport(
+                    &u,
+                    boundary.index(),
+                    &labels,
+                    &dirs,
+                    &ball,
+                    workers,
+                    progress,
+                    Some(&sink),
+                )?
             };
             let seconds = t.elapsed().as_secs_f64();
             let counts = angles.finish(run, &labels, Some(&dirs), opts.mem, progress)?;
@@ -160,7 +187,7 @@ pub fn map(
         }
         MapMethod::Exact => {
             let angles = Angles::<f64>::create(run, &spec)?;
-            let stops = exact(run, opts, &labels, &angles, &ball, progress)?;
+            let stops = exact(run, opts, &labels, &angles, &ball, &boundary, progress)?;
             let seconds = t.elapsed().as_secs_f64();
             let counts = angles.finish(run, &labels, None, opts.mem, progress)?;
             (None, Some(stops), seconds, counts)
@@ -173,6 +200,7 @@ pub fn map(
         mapped,
         stop_radius: ball.radius,
         upwind: upwind_stats,
+        boundary: boundary.name(),
         integrator: stops.is_some().then(exact_integrator),
         stops,
         seconds_directions,
@@ -323,6 +351,7 @@ fn exact(
     labels: &dyn BlockStore<u8>,
     angles: &Angles<f64>,
     ball: &StopBall,
+    boundary: &Boundary,
     progress: &dyn Progress,
 ) -> Result<std::collections::BTreeMap<&'static str, u64>, crate::Error> {
     let spec = labels.spec().clone();
@@ -333,7 +362,7 @@ fn exact(
         rk: exact_integrator(),
         ..TraceOptions::default()
     };
-    let tracer = Tracer::new(run, &topts, batch_lines)?;
+    let tracer = Tracer::with_boundary(run, &topts, batch_lines, boundary.clone())?;
     let mut stops: std::collections::BTreeMap<&'static str, u64> =
         Stop::ALL.iter().map(|s| (s.name(), 0)).collect();
     let blocks = spec.block_indices();

@@ -27,6 +27,7 @@ use crate::parallel::map_bounded;
 use crate::progress::Progress;
 use crate::trace::field::Tile;
 use crate::trace::integrate::StopBall;
+use crate::trace::nearest::SurfaceIndex;
 use crate::trace::surface::REACH as SURFACE_REACH;
 
 /// Whether a label takes part in the map (boundary, interior, center).
@@ -245,8 +246,10 @@ impl Book<'_> {
 /// (one of them waits for the other). Later rounds go over the blocks with voxels left
 /// in eight colour groups (no two blocks of a group touch) until nothing changes,
 /// first by the upwind rule and then allowed to fill.
+#[allow(clippy::too_many_arguments)]
 pub fn transport(
     u: &dyn BlockStore<f64>,
+    boundary: Option<&SurfaceIndex>,
     labels: &dyn BlockStore<u8>,
     dirs: &Directions,
     ball: &StopBall,
@@ -307,6 +310,7 @@ pub fn transport(
     }
     let ctx = Ctx {
         u,
+        boundary,
         labels,
         dirs,
         ball,
@@ -385,6 +389,7 @@ type Visited = (Visit, Option<[Vec<f32>; 3]>);
 /// What every visit of a transport reads.
 struct Ctx<'a> {
     u: &'a dyn BlockStore<f64>,
+    boundary: Option<&'a SurfaceIndex>,
     labels: &'a dyn BlockStore<u8>,
     dirs: &'a Directions,
     ball: &'a StopBall,
@@ -613,6 +618,7 @@ impl Ctx<'_> {
             &wide,
             ub.origin.map(|o| o + 1),
             [hs[0] - 2, hs[1] - 2, hs[2] - 2],
+            self.boundary,
         );
         drop(wide);
         let region = Region {

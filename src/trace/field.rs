@@ -31,6 +31,7 @@
 
 use glam::{DVec3, Vec4};
 
+use super::nearest::SurfaceIndex;
 use super::surface::{self, REACH};
 use crate::grid::Block;
 use crate::math::floor;
@@ -77,9 +78,14 @@ impl Tile {
     /// no value). The differences read the boundary nodes' sub-voxel values
     /// ([`super::surface`]); the u the tile keeps is the stored one.
     #[must_use]
-    pub fn from_u(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Self {
+    pub fn from_u(
+        u: &Block<f64>,
+        origin: [i64; 3],
+        shape: [usize; 3],
+        mesh: Option<&SurfaceIndex>,
+    ) -> Self {
         debug_assert!((u.origin, u.shape) == Self::u_box(origin, shape));
-        let corr = surface::corrections(u, origin, shape);
+        let corr = surface::corrections(u, origin, shape, mesh);
         // u with the boundary nodes' sub-voxel values, one node beyond the tile.
         let cu = &corr.u;
         let [_, sy, sx] = cu.shape;
@@ -684,7 +690,7 @@ mod tests {
     #[test]
     fn trilinear_u_is_exact_for_linear_u_and_the_node_value_at_a_node() {
         let u = |x: f64, y: f64, z: f64| 0.3 + 0.02 * x - 0.05 * y + 0.01 * z;
-        let tile = Tile::from_u(&grid(12, u), [0; 3], [12; 3]);
+        let tile = Tile::from_u(&grid(12, u), [0; 3], [12; 3], None);
         for p in [
             DVec3::new(4.0, 5.0, 6.0),
             DVec3::new(4.3, 5.9, 6.45),
@@ -721,7 +727,7 @@ mod tests {
     fn linear_u_has_its_exact_direction() {
         let n = 8usize;
         let u = grid(n, |x, y, z| 0.5 * x - 0.25 * y + 0.125 * z);
-        let t = Tile::from_u(&u, [0, 0, 0], [n; 3]);
+        let t = Tile::from_u(&u, [0, 0, 0], [n; 3], None);
         let p = DVec3::new(3.3, 2.7, 5.9);
         assert!(t.holds(p));
         let (g, v) = t.interpolate(p).unwrap();
@@ -741,7 +747,7 @@ mod tests {
     fn tiny_gradients_keep_their_direction() {
         let n = 6usize;
         let u = grid(n, |x, y, _| 1e-30 * (-x).exp() * (1.0 + 0.1 * y));
-        let t = Tile::from_u(&u, [0, 0, 0], [n; 3]);
+        let t = Tile::from_u(&u, [0, 0, 0], [n; 3], None);
         let d = t.direction(DVec3::new(2.5, 2.5, 2.5)).unwrap();
         assert!(d.x < -0.9 && d.y > 0.0, "{d}");
     }
@@ -752,7 +758,7 @@ mod tests {
         let mut u = grid(n, |_, _, _| 0.25);
         let o = u.offset(3 + U_MARGIN, 3 + U_MARGIN, 3 + U_MARGIN);
         u.data[o] = f64::NAN; // node (3, 3, 3)
-        let t = Tile::from_u(&u, [0, 0, 0], [n; 3]);
+        let t = Tile::from_u(&u, [0, 0, 0], [n; 3], None);
         assert_eq!(
             t.direction(DVec3::new(2.5, 2.5, 2.5)),
             Err(NoDirection::Outside)
@@ -771,11 +777,11 @@ mod tests {
         let mut u = grid(n, |_, _, _| 0.0);
         let o = u.offset(5 + U_MARGIN, 4 + U_MARGIN, 7 + U_MARGIN); // node (x 7, y 4, z 5)
         u.data[o] = 1e-20;
-        let t = Tile::from_u(&u, [0, 0, 0], [n; 3]);
+        let t = Tile::from_u(&u, [0, 0, 0], [n; 3], None);
         let q = t.escape(DVec3::new(5.2, 4.5, 5.0), 3).unwrap();
         assert_eq!(q, DVec3::new(7.0, 4.0, 5.0));
         assert!(t.escape(DVec3::new(5.2, 4.5, 5.0), 0).is_none());
-        let flat = Tile::from_u(&grid(n, |_, _, _| 0.0), [0; 3], [n; 3]);
+        let flat = Tile::from_u(&grid(n, |_, _, _| 0.0), [0; 3], [n; 3], None);
         assert!(flat.escape(DVec3::new(5.2, 4.5, 5.0), 3).is_none());
     }
 }

@@ -786,7 +786,7 @@ mod tests {
                 }
             }
         }
-        Tile::from_u(&u, [0, 0, 0], [n; 3])
+        Tile::from_u(&u, [0, 0, 0], [n; 3], None)
     }
 
     /// phi = |x - c| - 1000 (a cone, u = 1 - phi, positive: all solid).

@@ -3,7 +3,9 @@
 //!
 //! - [`field`]: unit node directions of -grad(phi), approximated between the nodes by a
 //!   quadratic B-spline (a C1 field);
-//! - [`surface`]: sub-voxel values of u at the boundary nodes, for the field;
+//! - [`surface`]: sub-voxel values of u at the boundary nodes, for the field, from the
+//!   input mesh or the smoothed voxel solid;
+//! - [`nearest`]: the nearest point of a triangle surface (a bounding volume hierarchy);
 //! - [`integrate`]: Dormand–Prince RK45 by arc length, with error control, stop reasons;
 //! - [`tiles`]: streamlines queued per tile, tiles built into a cache within the budget;
 //! - [`seeds`]: boundary voxels or surface vertices, and deterministic sampling;
@@ -14,6 +16,7 @@
 pub mod field;
 pub mod integrate;
 pub mod metrics;
+pub mod nearest;
 pub mod seeds;
 pub mod stage;
 pub mod surface;

@@ -12,6 +12,7 @@ use serde_json::{json, Value};
 use super::integrate::{Line, Rk45, Stop, StopBall};
 use super::metrics::{self, Collisions, SurfaceMetrics};
 use super::seeds::{self, SeedKind};
+use super::surface::Boundary;
 use super::tiles::{footprint, trace_tiled, TileStats, Tiling};
 use crate::grid::{read_table, write_table, BlockStore, GridError, GridSpec, MemBudget};
 use crate::progress::Progress;
@@ -102,6 +103,8 @@ pub struct TraceReport {
     pub lines_per_second: f64,
     /// The direction field the streamlines followed ([`crate::trace::field::FIELD`]).
     pub field: &'static str,
+    /// Where its boundary nodes' sub-voxel values came from ([`Boundary::name`]).
+    pub boundary: &'static str,
 }
 
 /// The seed table as stored in `RUN/seeds/`.
@@ -269,6 +272,8 @@ pub struct Traced {
     pub stats: TileStats,
     /// Seconds spent tracing.
     pub seconds: f64,
+    /// Where the field's boundary values came from ([`Boundary::name`]).
+    pub boundary: &'static str,
 }
 
 /// The stop ball of a solved run: radius `stop_radius` voxels, or by default 4 center
@@ -318,11 +323,26 @@ pub struct Tracer {
     pub ball: StopBall,
     /// Tile edge and cache sizes.
     pub tiling: Tiling,
+    /// Where the boundary nodes' sub-voxel values come from.
+    pub boundary: Boundary,
 }
 
 impl Tracer {
-    /// Set up tracing of up to `lines` streamlines at once on `run` within `opts.mem`.
+    /// Set up tracing of up to `lines` streamlines at once on `run` within `opts.mem`,
+    /// with the boundary of the run's input ([`Boundary::for_run`]).
     pub fn new(run: &RunDir, opts: &TraceOptions, lines: u64) -> Result<Self, crate::Error> {
+        let attrs = run.require_stage("solve")?;
+        let boundary = Boundary::for_run(&attrs, &run.grid()?, opts.mem);
+        Self::with_boundary(run, opts, lines, boundary)
+    }
+
+    /// [`Tracer::new`] with a boundary at hand.
+    pub fn with_boundary(
+        run: &RunDir,
+        opts: &TraceOptions,
+        lines: u64,
+        boundary: Boundary,
+    ) -> Result<Self, crate::Error> {
         let attrs = run.require_stage("solve")?;
         if !run.root().join("u/0").exists() {
             return Err(options(format!(
@@ -347,7 +367,8 @@ impl Tracer {
         }
         let halo = Tiling::halo_for(&rk);
         let (tile_bytes, build_bytes, chunk_bytes) = footprint(edge, halo, u.spec());
-        let line_bytes = lines * LINE_BYTES;
+        // The lines in flight and the boundary's mesh index stay for the whole trace.
+        let line_bytes = lines * LINE_BYTES + boundary.bytes();
         let threads = rayon::current_num_threads() as u64;
         // Every thread may be building a tile at once.
         let work = opts
@@ -382,6 +403,7 @@ impl Tracer {
             rk,
             ball,
             tiling,
+            boundary,
         })
     }
 
@@ -400,6 +422,7 @@ impl Tracer {
             .collect();
         trace_tiled(
             &self.u,
+            self.boundary.index(),
             &self.tiling,
             &self.rk,
             &self.ball,
@@ -467,7 +490,15 @@ pub fn trace_seeds(
             run.root().display()
         )));
     }
-    let tracer = Tracer::new(run, opts, seed_pts.len() as u64)?;
+    let boundary = match &surface {
+        Some(mesh) => Boundary::of_mesh(mesh, &spec, Boundary::cache_bytes(&attrs, opts.mem)),
+        None => Boundary::for_run(&attrs, &spec, opts.mem),
+    };
+    if let Some(problem) = &boundary.problem {
+        progress.warn(problem);
+    }
+    let boundary_name = boundary.name();
+    let tracer = Tracer::with_boundary(run, opts, seed_pts.len() as u64, boundary)?;
     let tiling = tracer.tiling;
     progress.info(&format!(
         "trace: {} seeds, tiles of {} (+{} halo), cache {} tiles and {} chunks",
@@ -492,6 +523,7 @@ pub fn trace_seeds(
         tiling,
         stats,
         seconds: t.elapsed().as_secs_f64(),
+        boundary: boundary_name,
     })
 }
 
@@ -637,6 +669,7 @@ pub fn trace(
         surface,
         lines_per_second: n as f64 / tr.seconds.max(1e-9),
         field: super::field::FIELD,
+        boundary: tr.boundary,
     };
     write_seeds(run.root(), "seeds.partial", &table, opts.seeds)?;
     run.commit_image("seeds")?;

@@ -6,25 +6,42 @@
 //! the edge of the flat top gets a direction straight down the axis instead of along
 //! its radius, and its streamline arrives up to 0.7 degrees off (docs/trace.md).
 //!
-//! For the direction field only, each boundary node b takes instead the value a smooth
-//! surface implies. The surface is the 1/2 level of the solid indicator smoothed with a
-//! Gaussian of [`SIGMA`] voxels. Its outward normal n and the depth d of b below it come
-//! from one Newton step, `n = -grad s / |grad s|` and `d = (s(b) - 1/2) / |grad s|`.
+//! For the direction field only, each boundary node b takes instead the value the
+//! surface implies. With the surface's outward normal n and the depth d of b below it,
 //! u falls linearly from u(b - n) to 0 at the surface, d voxels beyond b:
 //!
 //! `u(b) = d / (1 + d) * u(b - n)`, with u(b - n) interpolated trilinearly over the solid
 //! corners of its cell (their stored values).
 //!
-//! Where that is not well defined, b keeps u = 0: a depth outside [0, 1] (thin parts,
-//! whose smoothed indicator stays below 1/2, and sharp edges), a gradient of s under
-//! 1e-3, or a cell at b - n with less than half its weight on solid nodes.
+//! And the exterior nodes that share a cell with the solid (the corners of the cells
+//! surface seeds start in) point along the surface's inward normal, where the layers'
+//! staircase would point along the axes.
 //!
-//! A corrected value depends only on the nodes within [`REACH`] of b, read with fixed
-//! sums in a fixed order, so every tile that holds b computes the same bits.
+//! Which surface ([`Boundary`]):
+//! - the run's input surface, when it has one (a triangle mesh or the built-in
+//!   starfish): d is the distance from b to its nearest point of the mesh and n the
+//!   direction to it ([`super::nearest`]), for nodes within a voxel of the mesh (an
+//!   exterior node: within [`super::nearest::RADIUS`]). At a horn's base a few voxels
+//!   across, the smoothed solid below bends the field along the surface, and surface
+//!   seeds there fold the sphere map (spot at resolution 128: 14 flipped triangles;
+//!   with the mesh, none);
+//! - otherwise (label volumes, molecules), and for the nodes the mesh does not explain:
+//!   the 1/2 level of the solid indicator smoothed with a Gaussian of [`SIGMA`] voxels.
+//!   n and d come from one Newton step, `n = -grad s / |grad s|` and
+//!   `d = (s(b) - 1/2) / |grad s|`. Where that is not well defined, b keeps u = 0: a
+//!   depth outside [0, 1] (thin parts, whose smoothed indicator stays below 1/2, and
+//!   sharp edges), a gradient of s under 1e-3, or a cell at b - n with less than half
+//!   its weight on solid nodes.
+//!
+//! A corrected value depends only on the mesh and the nodes within [`REACH`] of b, read
+//! with fixed sums in a fixed order, so every tile that holds b computes the same bits.
 
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
-use crate::grid::Block;
+use super::nearest::{self, SurfaceIndex};
+use crate::grid::{Block, GridSpec, MemBudget};
+use crate::input::TriMesh;
+use crate::math::Vec3;
 
 /// Width (voxels) of the Gaussian that smooths the solid indicator.
 const SIGMA: f64 = 2.0;
@@ -147,6 +164,90 @@ pub fn bytes(shape: [usize; 3]) -> u64 {
     nodes * (8 + query + normal) + bits
 }
 
+/// Where the boundary nodes' sub-voxel values come from: the run's input surface when
+/// there is one (a triangle mesh, or the built-in starfish), else the smoothed voxel
+/// solid.
+#[derive(Clone, Default)]
+pub struct Boundary {
+    /// The input surface in voxel coordinates, indexed.
+    pub mesh: Option<Arc<SurfaceIndex>>,
+    /// Why an input mesh is not used (it could not be read), to warn about.
+    pub problem: Option<String>,
+}
+
+impl Boundary {
+    /// The boundary of a run whose voxelize stage recorded `attrs`, for a stage that
+    /// runs within `mem`.
+    #[must_use]
+    pub fn for_run(attrs: &serde_json::Value, spec: &GridSpec, mem: MemBudget) -> Self {
+        match super::seeds::input_surface(attrs) {
+            Ok(Some(mesh)) => Self::of_mesh(&mesh, spec, Self::cache_bytes(attrs, mem)),
+            Ok(None) => Self::default(),
+            Err(problem) => Self {
+                mesh: None,
+                problem: Some(format!(
+                    "{problem}; the boundary nodes' sub-voxel values come from the smoothed voxel solid instead"
+                )),
+            },
+        }
+    }
+
+    /// The boundary from `mesh` (world coordinates) on the grid `spec`, keeping up to
+    /// `cache_bytes` of answers for nodes.
+    #[must_use]
+    pub fn of_mesh(mesh: &TriMesh, spec: &GridSpec, cache_bytes: u64) -> Self {
+        let vertices: Vec<Vec3> = mesh
+            .vertices
+            .iter()
+            .map(|&v| spec.world_to_voxel(v))
+            .collect();
+        let index = SurfaceIndex::new(&vertices, &mesh.triangles).with_cache(cache_bytes);
+        Self {
+            mesh: Some(Arc::new(index)),
+            problem: None,
+        }
+    }
+
+    /// The cache a stage within `mem` gives the mesh's answers: about four nodes per
+    /// boundary voxel the voxelizer counted (the voxel and the exterior nodes that share
+    /// a cell with the solid), at most an eighth of the budget.
+    #[must_use]
+    pub fn cache_bytes(attrs: &serde_json::Value, mem: MemBudget) -> u64 {
+        let boundary = attrs
+            .pointer("/stages/voxelize/result/counts/1")
+            .and_then(serde_json::Value::as_u64)
+            .unwrap_or(0);
+        (boundary * 4 * nearest::CACHE_ENTRY_BYTES).min(mem.work_bytes() / 8)
+    }
+
+    /// The index, if the mesh is used.
+    #[must_use]
+    pub fn index(&self) -> Option<&SurfaceIndex> {
+        self.mesh.as_deref()
+    }
+
+    /// Bytes the index holds.
+    #[must_use]
+    pub fn bytes(&self) -> u64 {
+        self.mesh.as_ref().map_or(0, |m| m.bytes())
+    }
+
+    /// What the run records as the boundary's source.
+    #[must_use]
+    pub fn name(&self) -> &'static str {
+        if self.mesh.is_some() {
+            BOUNDARY_MESH
+        } else {
+            BOUNDARY_SMOOTHED
+        }
+    }
+}
+
+/// [`Boundary::name`] with the input mesh.
+pub const BOUNDARY_MESH: &str = "input mesh";
+/// [`Boundary::name`] without it.
+pub const BOUNDARY_SMOOTHED: &str = "smoothed voxel solid";
+
 /// The kinds of node the smoothed surface is evaluated at.
 #[derive(Clone, Copy, PartialEq)]
 enum Query {
@@ -159,7 +260,12 @@ enum Query {
 /// The corrections of the box `[origin, origin + shape)` from `u`, which holds that box
 /// with `REACH + 1` more nodes on every side.
 #[must_use]
-pub fn corrections(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Corrections {
+pub fn corrections(
+    u: &Block<f64>,
+    origin: [i64; 3],
+    shape: [usize; 3],
+    mesh: Option<&SurfaceIndex>,
+) -> Corrections {
     let m = REACH + 1;
     debug_assert!((0..3).all(|a| u.origin[a] == origin[a] - m as i64));
     debug_assert!((0..3).all(|a| u.shape[a] == shape[a] + 2 * m));
@@ -207,13 +313,30 @@ pub fn corrections(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Corre
             }
         }
     }
+    // By column (y, x), then z: the smoothed solid's row sums along y are shared down a
+    // column, and the mesh's nearest triangles change little.
+    queries.sort_unstable_by_key(|(l, _)| (l[1], l[2], l[0]));
     let mut normals = Vec::new();
+    if let Some(mesh) = mesh {
+        // The nodes the mesh explains take its values; the others, the smoothed solid's.
+        // (Queries go down columns: each starts from its predecessor's triangle.)
+        let mut hint = None;
+        queries.retain(|&(l, kind)| {
+            let l = l.map(usize::from);
+            let o = out.offset(l[0] - REACH, l[1] - REACH, l[2] - REACH);
+            match from_mesh(u, mesh, l, kind, &mut hint) {
+                Some(MeshValue::U(v)) => out.data[o] = v,
+                Some(MeshValue::Normal(n)) => normals.push((o as u32, n)),
+                None => return true,
+            }
+            false
+        });
+    }
     if queries.is_empty() {
+        normals.sort_unstable_by_key(|n| n.0);
         return Corrections { u: out, normals };
     }
     let bits = Bits::of(u);
-    // By column (y, x), then z: the row sums along y are shared down a column.
-    queries.sort_unstable_by_key(|(l, _)| (l[1], l[2], l[0]));
     let mut column = Column::default();
     for &(l, kind) in &queries {
         let l = l.map(usize::from);
@@ -303,11 +426,46 @@ fn boundary_value(u: &Block<f64>, l: [usize; 3], s: f64, g: [f64; 3], norm: f64)
     Some(d / (1.0 + d) * inward)
 }
 
-/// [`corrections`]`(..).u`: u over the box and one more node, with the boundary nodes'
-/// sub-voxel values.
-#[cfg(test)]
-fn corrected(u: &Block<f64>, origin: [i64; 3], shape: [usize; 3]) -> Block<f64> {
-    corrections(u, origin, shape).u
+/// What the mesh gives a node.
+enum MeshValue {
+    /// A boundary node's sub-voxel u.
+    U(f64),
+    /// An exterior node's inward normal (x, y, z).
+    Normal([f32; 3]),
+}
+
+/// A node's value from the input mesh (see the module's notes), if the mesh explains it:
+/// a boundary node within a voxel of the surface (its depth d and outward normal n, the
+/// direction to its nearest surface point: `u = d / (1 + d) * u(b - n)`, as from the
+/// smoothed solid), an exterior node within [`nearest::RADIUS`] (its inward normal, the
+/// direction to its nearest surface point).
+fn from_mesh(
+    u: &Block<f64>,
+    mesh: &SurfaceIndex,
+    l: [usize; 3],
+    kind: Query,
+    hint: &mut Option<u32>,
+) -> Option<MeshValue> {
+    let g: [i64; 3] = std::array::from_fn(|a| u.origin[a] + l[a] as i64);
+    let p = Vec3::new(g[2] as f64, g[1] as f64, g[0] as f64);
+    let (near, triangle) = mesh.nearest_node([g[2], g[1], g[0]], *hint)?;
+    *hint = Some(triangle);
+    let d = near.distance;
+    match kind {
+        // On the surface: u = 0, as stored.
+        Query::Boundary if d == 0.0 => Some(MeshValue::U(0.0)),
+        Query::Boundary if d <= 1.0 => {
+            let n = (near.point - p) / d;
+            let inward = interpolate_solid(u, l, [-n.z, -n.y, -n.x])?;
+            Some(MeshValue::U(d / (1.0 + d) * inward))
+        }
+        Query::Outside if d > 0.0 => {
+            let n = (near.point - p) / d;
+            Some(MeshValue::Normal([n.x as f32, n.y as f32, n.z as f32]))
+        }
+        // A boundary node deeper than a voxel is left to the smoothed solid.
+        _ => None,
+    }
 }
 
 /// u at `l + q` (local node `l`, offset `q` within one node; z, y, x) interpolated
@@ -376,16 +534,99 @@ mod tests {
         u
     }
 
+    /// A sphere of radius `r` around (c, c, c): an icosahedron split four times (5,120
+    /// triangles, edges of about r / 16), its vertices on the sphere. The sphere is at
+    /// most r (1 - cos 2 deg) ~ 6e-4 r inside the mesh's faces.
+    fn sphere_mesh(c: f64, r: f64) -> SurfaceIndex {
+        let t = f64::midpoint(1.0, 5f64.sqrt());
+        let mut v: Vec<Vec3> = [
+            [-1.0, t, 0.0],
+            [1.0, t, 0.0],
+            [-1.0, -t, 0.0],
+            [1.0, -t, 0.0],
+            [0.0, -1.0, t],
+            [0.0, 1.0, t],
+            [0.0, -1.0, -t],
+            [0.0, 1.0, -t],
+            [t, 0.0, -1.0],
+            [t, 0.0, 1.0],
+            [-t, 0.0, -1.0],
+            [-t, 0.0, 1.0],
+        ]
+        .map(|p| Vec3::from_array(p).normalize())
+        .to_vec();
+        let mut f: Vec<[u32; 3]> = vec![
+            [0, 11, 5],
+            [0, 5, 1],
+            [0, 1, 7],
+            [0, 7, 10],
+            [0, 10, 11],
+            [1, 5, 9],
+            [5, 11, 4],
+            [11, 10, 2],
+            [10, 7, 6],
+            [7, 1, 8],
+            [3, 9, 4],
+            [3, 4, 2],
+            [3, 2, 6],
+            [3, 6, 8],
+            [3, 8, 9],
+            [4, 9, 5],
+            [2, 4, 11],
+            [6, 2, 10],
+            [8, 6, 7],
+            [9, 8, 1],
+        ];
+        for _ in 0..4 {
+            let mut mid = std::collections::HashMap::new();
+            let mut split = |a: u32, b: u32, v: &mut Vec<Vec3>| {
+                *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                    v.push(((v[a as usize] + v[b as usize]) * 0.5).normalize());
+                    (v.len() - 1) as u32
+                })
+            };
+            f = f
+                .iter()
+                .flat_map(|&[a, b, d]| {
+                    let (ab, bd, da) = (
+                        split(a, b, &mut v),
+                        split(b, d, &mut v),
+                        split(d, a, &mut v),
+                    );
+                    [[a, ab, da], [ab, b, bd], [da, bd, d], [ab, bd, da]]
+                })
+                .collect();
+        }
+        let v: Vec<Vec3> = v.iter().map(|&p| Vec3::splat(c) + p * r).collect();
+        SurfaceIndex::new(&v, &f)
+    }
+
     /// On a ball, the corrected boundary values are those of the linear profile the
     /// stored u implies, 1 - r'/r, to within a few percent of one voxel's fall; the
-    /// interior and the outside are copied.
+    /// interior and the outside are copied. From a mesh of the sphere they come closer.
     #[test]
     fn boundary_values_of_a_ball_follow_its_profile() {
         let (n, r, c) = (48usize, 17.3, 23.6);
         let m = REACH as i64 + 1;
         let u = ball(n, -m, c - m as f64, r);
-        let shape = [n - 2 * m as usize; 3];
-        let out = corrected(&u, [0; 3], shape);
+        let mesh = sphere_mesh(c - m as f64, r);
+        // In units of one voxel's fall of u (1 / r).
+        let smoothed = profile_error(&u, c - m as f64, r, None);
+        let exact = profile_error(&u, c - m as f64, r, Some(&mesh));
+        eprintln!("largest error: smoothed solid {smoothed:.3}, mesh {exact:.3} voxels");
+        assert!(
+            smoothed < 0.35,
+            "smoothed solid: worst error {smoothed} voxels"
+        );
+        assert!(exact < 0.1, "mesh: worst error {exact} voxels");
+    }
+
+    /// The largest error of the corrected boundary values of `u`, the ball of radius `r`
+    /// around (c, c, c), against its profile (voxels of u's fall).
+    fn profile_error(u: &Block<f64>, c: f64, r: f64, mesh: Option<&SurfaceIndex>) -> f64 {
+        let n = u.shape[0];
+        let shape = [n - 2 * (REACH + 1); 3];
+        let out = corrections(u, [0; 3], shape, mesh).u;
         let (mut fixed, mut worst) = (0, 0.0f64);
         for z in 0..shape[0] + 2 {
             for y in 0..shape[1] + 2 {
@@ -396,7 +637,7 @@ mod tests {
                         assert!(v.to_bits() == raw.to_bits(), "only boundary nodes change");
                         continue;
                     }
-                    let p = [z, y, x].map(|v| v as f64 - 1.0 - (c - m as f64));
+                    let p = [z, y, x].map(|v| v as f64 - 1.0 - c);
                     let d = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
                     let want = 1.0 - d / r;
                     worst = worst.max((v - want).abs() * r);
@@ -405,8 +646,7 @@ mod tests {
             }
         }
         assert!(fixed > 500, "{fixed} boundary nodes corrected");
-        // In units of one voxel's fall of u (1 / r).
-        assert!(worst < 0.35, "worst error {worst} voxels");
+        worst
     }
 
     /// The same node gets the same bits from boxes that hold it at different places.
@@ -415,7 +655,16 @@ mod tests {
         let (n, r, c) = (48usize, 15.0, 23.0);
         let m = REACH as i64 + 1;
         let u = ball(n, -m, c - m as f64, r);
-        let whole = corrections(&u, [0; 3], [n - 2 * m as usize; 3]);
+        let mesh = sphere_mesh(c - m as f64, r);
+        for mesh in [None, Some(&mesh)] {
+            same_values_in_two_boxes(&u, mesh);
+        }
+    }
+
+    fn same_values_in_two_boxes(u: &Block<f64>, mesh: Option<&SurfaceIndex>) {
+        let n = u.shape[0];
+        let m = REACH as i64 + 1;
+        let whole = corrections(u, [0; 3], [n - 2 * m as usize; 3], mesh);
         let sub_origin = [5i64, 9, 3];
         let sub_shape = [20usize, 17, 25];
         let mut part = Block::filled(
@@ -436,7 +685,7 @@ mod tests {
                 }
             }
         }
-        let sub = corrections(&part, sub_origin, sub_shape);
+        let sub = corrections(&part, sub_origin, sub_shape, mesh);
         let global = |b: &Block<f64>, o: usize| {
             let [sy, sx] = [b.shape[1], b.shape[2]];
             let l = [o / (sy * sx), o / sx % sy, o % sx];
@@ -534,7 +783,21 @@ mod tests {
         let (n, r, c) = (48usize, 17.3, 23.6);
         let m = REACH + 1;
         let u = ball(n, -(m as i64), c - m as f64, r);
-        let out = corrections(&u, [0; 3], [n - 2 * m; 3]);
+        let mesh = sphere_mesh(c - m as f64, r);
+        // From the mesh, a node's normal is that of its nearest face (or edge, or
+        // vertex): the faces turn up to their angular radius, about 2.3 degrees, from the
+        // sphere's radius.
+        for (mesh, bound) in [(None, [2.0, 8.0]), (Some(&mesh), [1.5, 3.0])] {
+            normals_point_at(&u, c - m as f64, mesh, bound);
+        }
+    }
+
+    /// The exterior normals' angles to the center `c` (each axis), with median and max
+    /// under `bound`.
+    fn normals_point_at(u: &Block<f64>, c: f64, mesh: Option<&SurfaceIndex>, bound: [f64; 2]) {
+        let n = u.shape[0];
+        let m = REACH + 1;
+        let out = corrections(u, [0; 3], [n - 2 * m; 3], mesh);
         let mut angles = Vec::new();
         for &(o, g) in &out.normals {
             let (o, g) = (o as usize, g.map(f64::from));
@@ -542,7 +805,7 @@ mod tests {
             let l = [o / (sy * sx), o / sx % sy, o % sx];
             assert!(out.u.data[o] < 0.0, "normals only outside the solid");
             // Node (z, y, x) of the box is local l + 1 of `out.u`.
-            let to_c = [l[2], l[1], l[0]].map(|v| c - m as f64 - (v as f64 - 1.0));
+            let to_c = [l[2], l[1], l[0]].map(|v| c - (v as f64 - 1.0));
             let len = (to_c[0].powi(2) + to_c[1].powi(2) + to_c[2].powi(2)).sqrt();
             let cos = (0..3).map(|a| g[a] * to_c[a] / len).sum::<f64>();
             angles.push(cos.clamp(-1.0, 1.0).acos().to_degrees());
@@ -551,10 +814,11 @@ mod tests {
         angles.sort_by(f64::total_cmp);
         let (med, max) = (angles[angles.len() / 2], angles[angles.len() - 1]);
         eprintln!(
-            "{} layer nodes: median {med:.2}, max {max:.2} degrees",
-            angles.len()
+            "{} layer nodes: median {med:.2}, max {max:.2} degrees (mesh: {})",
+            angles.len(),
+            mesh.is_some()
         );
         assert!(angles.len() > 1000);
-        assert!(med < 2.0 && max < 8.0, "median {med}, max {max}");
+        assert!(med < bound[0] && max < bound[1], "median {med}, max {max}");
     }
 }

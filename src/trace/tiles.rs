@@ -11,6 +11,7 @@ use rayon::prelude::*;
 
 use super::field::Tile;
 use super::integrate::{advance, Advance, Line, Rk45, Stop, StopBall, ESCAPE_RADIUS};
+use super::nearest::SurfaceIndex;
 use crate::grid::{copy_overlap, to_usize, Block, BlockStore, GridError, GridSpec};
 use crate::math::{volume, Idx3};
 use crate::progress::Progress;
@@ -220,10 +221,13 @@ type Done = (u32, Outcome, Vec<DVec3>);
 type Moved = (Line, Vec<DVec3>);
 
 /// Trace every line of `lines` to its end. `phi` is read through a chunk cache; tiles are
-/// built as needed. Results are indexed by `Line::id`. `paths`, when given, collects the
+/// built as needed, their boundary nodes' values from `mesh` where it is given (the
+/// run's input surface, [`super::surface`]). Results are indexed by `Line::id`. `paths`, when given, collects the
 /// points of every streamline (for exports).
+#[allow(clippy::too_many_arguments)]
 pub fn trace_tiled(
     phi: &dyn BlockStore<f64>,
+    mesh: Option<&SurfaceIndex>,
     tiling: &Tiling,
     rk: &Rk45,
     ball: &StopBall,
@@ -289,7 +293,7 @@ pub fn trace_tiled(
                 let (origin, shape) = tiling.node_box(k);
                 let (u_origin, u_shape) = Tile::u_box(origin, shape);
                 let u = chunks.region(u_origin, u_shape)?;
-                Ok((k, Arc::new(Tile::from_u(&u, origin, shape))))
+                Ok((k, Arc::new(Tile::from_u(&u, origin, shape, mesh))))
             })
             .collect::<Result<_, GridError>>()?;
         stats.tiles_built += built.len() as u64;
@@ -413,7 +417,7 @@ mod tests {
                 }
             }
         }
-        Tile::from_u(&u, origin, shape)
+        Tile::from_u(&u, origin, shape, None)
     }
 
     /// Every stage point of a step started in a tile's own cells lies within `reach` of
