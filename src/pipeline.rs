@@ -46,7 +46,11 @@ pub fn voxelize_new_run(
                 Shape::Volume(_) => "label-volume".into(),
             };
             let name = path.display().to_string();
-            let mut meta = json!({"path": name, "sha256": sha, "format": format});
+            // The later stages read a mesh input again (surface seeds, the field's
+            // boundary values): from wherever they run.
+            let absolute = std::path::absolute(path)
+                .map_or_else(|_| name.clone(), |p| p.display().to_string());
+            let mut meta = json!({"path": absolute, "sha256": sha, "format": format});
             if let Shape::Molecule(_) = &shape {
                 // How the atoms were read, so that pictures can read them again alike.
                 meta["molecule"] = serde_json::to_value(&iopts.molecule).expect("options");

@@ -168,6 +168,13 @@ fn same_maps(run: &Path, small: u64) {
             .unwrap();
         let rep = pool.install(|| run_map(&run, MapMethod::Upwind, MemBudget(mem)));
         assert_eq!(rep.mapped, rep.voxels);
+        let mesh = RunDir::open(&run).unwrap().attrs().unwrap()["input"]["format"] == "obj";
+        let want = if mesh {
+            "input mesh"
+        } else {
+            "smoothed voxel solid"
+        };
+        assert_eq!(rep.boundary, want);
         let th = field::<f32>(&run, "theta", f32::NAN).1;
         let ps = field::<f32>(&run, "psi", f32::NAN).1;
         let bits: Vec<(u32, u32)> = th

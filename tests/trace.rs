@@ -435,6 +435,43 @@ fn a_sphere_maps_onto_the_sphere_without_flips_and_exports_whole_files() {
     assert_eq!(boundary(&run), "smoothed voxel solid");
     let o = harmap(&["trace", r, "--seeds", "surface"]);
     assert_eq!(o.status.code(), Some(2));
+    // The map alike; the inverse follows the field the map recorded, and says when the
+    // mesh that field needs is gone.
+    let map_boundary = || {
+        let a = RunDir::open(&run).unwrap().attrs().unwrap();
+        a["stages"]["map"]["result"]["boundary"].clone()
+    };
+    let o = harmap(&["map", r, "--progress", "never"]);
+    ok(&o);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("smoothed voxel solid"));
+    assert_eq!(map_boundary(), "smoothed voxel solid");
+    let points = d.path().join("points.csv");
+    std::fs::write(&points, "phi,theta,psi\n0.5,1.0,0.5\n").unwrap();
+    let out = d.path().join("inverse.csv");
+    let inverse = || {
+        let o = harmap(&[
+            "inverse",
+            r,
+            "--points",
+            points.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--progress",
+            "never",
+        ]);
+        ok(&o);
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    assert!(
+        !inverse().contains("warning"),
+        "the map's own field is at hand"
+    );
+    std::fs::rename(d.path().join("moved.obj"), &mesh_path).unwrap();
+    ok(&harmap(&["-q", "map", r]));
+    assert_eq!(map_boundary(), "input mesh");
+    std::fs::rename(&mesh_path, d.path().join("moved.obj")).unwrap();
+    let err = inverse();
+    assert!(err.contains("the map used the mesh"), "{err}");
 }
 
 /// spot (../shared/data; skipped without it) at resolution 96. Where its horns meet the

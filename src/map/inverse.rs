@@ -24,7 +24,7 @@ use crate::grid::{BlockStore, GridError, MemBudget};
 use crate::run::RunDir;
 use crate::trace::field::Tile;
 use crate::trace::integrate::{level_step, onto_level, LevelEnd, LevelField, Rk45, StopBall};
-use crate::trace::surface::Boundary;
+use crate::trace::surface::{Boundary, BOUNDARY_MESH};
 
 /// Step of the uphill integration (voxels).
 const STEP: f64 = 0.25;
@@ -195,13 +195,27 @@ impl Inverse {
         let tile_bytes = Tile::bytes(side);
         let build = Tile::build_bytes(side) + 8 * crate::math::volume(spec.chunk) * 8;
         let threads = rayon::current_num_threads() as u64;
-        let boundary = Boundary::for_run(&attrs, &spec, mem);
+        // The field the map followed: boundary values from the input mesh only if the
+        // map's were (a map recorded before they could be had the smoothed solid's).
+        let mapped = attrs.pointer("/stages/map").is_some();
+        let map_boundary = attrs
+            .pointer("/stages/map/result/boundary")
+            .and_then(serde_json::Value::as_str);
+        let boundary = if mapped && map_boundary != Some(BOUNDARY_MESH) {
+            Boundary::default()
+        } else {
+            let mut b = Boundary::for_run(&attrs, &spec, mem);
+            if let (Some(p), true) = (b.problem.as_mut(), mapped) {
+                p.push_str("; the map used the mesh, so next to the boundary the inverse follows another field");
+            }
+            b
+        };
         let avail = mem
             .work_bytes()
             .saturating_sub(threads * build + boundary.bytes());
         let cap = avail / tile_bytes;
         if cap < threads + 1 {
-            let need = (threads + 1) * tile_bytes + threads * build;
+            let need = (threads + 1) * tile_bytes + threads * build + boundary.bytes();
             return Err(GridError::Budget {
                 budget: mem.to_string(),
                 what: "the inverse map (tiles of the direction field)".into(),

@@ -110,8 +110,9 @@ impl Tile {
         }
         // On the exterior layers (where phi only keeps streamlines in), the staircase
         // would point along the axes: a node that shares a cell with the solid (as the
-        // corners of the cells that surface seeds start in do) goes along the smoothed
-        // surface's inward normal instead. corrections() gives normals only at the
+        // corners of the cells that surface seeds start in do) goes along the surface's
+        // inward normal instead (the mesh's or the smoothed solid's, as
+        // [`surface::corrections`] found it). corrections() gives normals only at the
         // tile's own nodes (one inside the corrected box), where u has a value.
         for &(o, d) in &corr.normals {
             let o = o as usize;

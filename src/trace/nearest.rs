@@ -7,9 +7,10 @@
 //! the triangles: boxes farther than the best distance found so far are not opened.
 //!
 //! Answers are exact (closest point on each triangle, Ericson's "Real-Time Collision
-//! Detection", 5.1.5) and deterministic: the tree is built in a fixed way from the mesh
-//! and a query walks it in an order that depends only on the query point; a tie keeps
-//! the first triangle met.
+//! Detection", 5.1.5) and deterministic: the tree is built in a fixed way from the mesh,
+//! and of equally near triangles a query answers with the one first in the tree's
+//! order, whichever boxes its hint (the triangle of a neighbouring query) spares it
+//! from opening.
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -41,6 +42,7 @@ pub struct SurfaceIndex {
     tris: Vec<[Vec3; 3]>,
     nodes: Vec<Node>,
     /// Answers for grid nodes ([`SurfaceIndex::nearest_node`]), in shards by node.
+    /// (Grid nodes are within 2^20 of the origin on every axis, so keys do not collide.)
     /// The map builds a block's tiles once per visit, several times over; the trace's
     /// tiles share their halos.
     cache: Vec<Mutex<HashMap<u64, Answer, NodeHash>>>,
@@ -84,8 +86,10 @@ impl std::hash::Hasher for NodeHasher {
 type Answer = Option<(Nearest, u32)>;
 /// Shards of the cache.
 const SHARDS: usize = 64;
-/// Bytes a cached answer takes (key, value and the table's slack).
-pub const CACHE_ENTRY_BYTES: u64 = 80;
+/// Bytes a cached answer takes: key and value (56 bytes) and the hash table's slack
+/// (a control byte a slot, and up to half the slots empty after it doubles; 65-130
+/// bytes an entry measured).
+pub const CACHE_ENTRY_BYTES: u64 = 136;
 
 /// The nearest point of the surface to a query point.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -113,6 +117,12 @@ impl SurfaceIndex {
             .filter(|t| {
                 t.iter()
                     .all(|&i| (i as usize) < n && vertices[i as usize].is_finite())
+            })
+            // A triangle without area: its edges are its neighbours' (and the closest
+            // point formulas divide by its edges' lengths).
+            .filter(|t| {
+                let [a, b, c] = t.map(|i| vertices[i as usize]);
+                (b - a).cross(c - a).length_squared() > 0.0
             })
             .map(|t| t.map(|i| vertices[i as usize]))
             .collect();
@@ -150,6 +160,7 @@ impl SurfaceIndex {
     #[must_use]
     pub fn nearest_node(&self, node: [i64; 3], hint: Option<u32>) -> Answer {
         // 21 bits a coordinate, offset so that halo nodes before the grid fit.
+        debug_assert!(node.iter().all(|c| c.abs() < 1 << 20), "{node:?}");
         let key = node
             .iter()
             .fold(0u64, |k, &c| k << 21 | ((c + (1 << 20)) as u64 & 0x1f_ffff));
@@ -442,10 +453,21 @@ mod tests {
 
     #[test]
     fn bad_triangles_are_left_out() {
-        let v = vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::splat(f64::NAN)];
-        let index = SurfaceIndex::new(&v, &[[0, 1, 2], [0, 1, 3], [0, 1, 9]]);
+        let v = vec![
+            Vec3::ZERO,
+            Vec3::X,
+            Vec3::Y,
+            Vec3::splat(f64::NAN),
+            Vec3::X * 2.0,
+        ];
+        // A NaN corner, an index out of range, a repeated corner, collinear corners.
+        let t = [[0, 1, 2], [0, 1, 3], [0, 1, 9], [0, 0, 1], [0, 1, 4]];
+        let index = SurfaceIndex::new(&v, &t);
         let n = index.nearest(Vec3::new(0.2, 0.2, 1.0)).expect("found");
         assert!((n.distance - 1.0).abs() < 1e-12);
+        assert!(n.point.is_finite());
+        // Only the good triangle is left: nothing within reach past its corner b.
+        assert!(index.nearest(Vec3::new(3.5, 0.0, 0.0)).is_none());
         assert!(SurfaceIndex::new(&[], &[]).nearest(Vec3::ZERO).is_none());
     }
 }

@@ -80,7 +80,13 @@ pub fn input_surface(attrs: &serde_json::Value) -> Result<Option<TriMesh>, Strin
         return Ok(None);
     };
     let path = std::path::Path::new(path);
-    if path.is_dir() || input.get("format").and_then(|f| f.as_str()) == Some("label-volume") {
+    let format = input.get("format").and_then(|f| f.as_str()).unwrap_or("");
+    // Label volumes, molecules, and meshes handed over in memory (no file to read again).
+    if path.is_dir()
+        || format == "label-volume"
+        || format == "memory"
+        || crate::input::molecule::is_molecule(format)
+    {
         return Ok(None);
     }
     if !path.exists() {
@@ -110,6 +116,28 @@ pub fn input_surface(attrs: &serde_json::Value) -> Result<Option<TriMesh>, Strin
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Only mesh files are read again: molecules, label volumes and meshes handed over
+    /// in memory have no surface to give (and no warning that it is gone).
+    #[test]
+    fn only_mesh_inputs_have_a_surface() {
+        let input = |path: &str, format: &str| serde_json::json!({"input": {"path": path, "format": format, "sha256": null}});
+        for (path, format) in [
+            ("/nonexistent/1crn.pdb", "pdb"),
+            ("/nonexistent/7pbl.cif", "cif"),
+            ("/nonexistent/labels.nii.gz", "label-volume"),
+            ("a mesh from a test", "memory"),
+        ] {
+            assert!(
+                matches!(input_surface(&input(path, format)), Ok(None)),
+                "{format}"
+            );
+        }
+        let gone = input_surface(&input("/nonexistent/spot.obj", "obj"));
+        assert!(gone.is_err_and(|e| e.contains("is gone")));
+        let star = serde_json::json!({"input": {"path": null, "builtin": "starfish"}});
+        assert!(input_surface(&star).is_ok_and(|m| m.is_some()));
+    }
 
     #[test]
     fn samples_are_deterministic_sorted_and_spread() {

@@ -491,7 +491,7 @@ pub fn trace_seeds(
         )));
     }
     let boundary = match &surface {
-        Some(mesh) => Boundary::of_mesh(mesh, &spec, Boundary::cache_bytes(&attrs, opts.mem)),
+        Some(mesh) => Boundary::with_mesh(&attrs, &spec, opts.mem, Some(mesh)),
         None => Boundary::for_run(&attrs, &spec, opts.mem),
     };
     if let Some(problem) = &boundary.problem {

@@ -180,8 +180,26 @@ impl Boundary {
     /// runs within `mem`.
     #[must_use]
     pub fn for_run(attrs: &serde_json::Value, spec: &GridSpec, mem: MemBudget) -> Self {
+        Self::with_mesh(attrs, spec, mem, None)
+    }
+
+    /// [`Boundary::for_run`] with the input mesh at hand, if it is (else it is read).
+    #[must_use]
+    pub fn with_mesh(
+        attrs: &serde_json::Value,
+        spec: &GridSpec,
+        mem: MemBudget,
+        loaded: Option<&TriMesh>,
+    ) -> Self {
+        if !Self::solid_is_the_mesh(attrs) {
+            return Self::default();
+        }
+        let cache = Self::cache_bytes(attrs, mem);
+        if let Some(mesh) = loaded {
+            return Self::of_mesh(mesh, spec, cache);
+        }
         match super::seeds::input_surface(attrs) {
-            Ok(Some(mesh)) => Self::of_mesh(&mesh, spec, Self::cache_bytes(attrs, mem)),
+            Ok(Some(mesh)) => Self::of_mesh(&mesh, spec, cache),
             Ok(None) => Self::default(),
             Err(problem) => Self {
                 mesh: None,
@@ -190,6 +208,23 @@ impl Boundary {
                 )),
             },
         }
+    }
+
+    /// Whether the voxel solid is the inside of the input surface, so that the surface
+    /// is where the solid's boundary is: not when the voxelizer filled cavities (their
+    /// walls lie inside the solid), closed tunnels (`--close`: the plugs' faces are no
+    /// part of the mesh) or removed pieces.
+    #[must_use]
+    pub fn solid_is_the_mesh(attrs: &serde_json::Value) -> bool {
+        ["cavity_voxels", "closing_voxels", "removed_voxels"]
+            .iter()
+            .all(|k| {
+                attrs
+                    .pointer(&format!("/stages/voxelize/result/{k}"))
+                    .and_then(serde_json::Value::as_u64)
+                    .unwrap_or(0)
+                    == 0
+            })
     }
 
     /// The boundary from `mesh` (world coordinates) on the grid `spec`, keeping up to
@@ -210,7 +245,8 @@ impl Boundary {
 
     /// The cache a stage within `mem` gives the mesh's answers: about four nodes per
     /// boundary voxel the voxelizer counted (the voxel and the exterior nodes that share
-    /// a cell with the solid), at most an eighth of the budget.
+    /// a cell with the solid), at most an eighth of the budget (the entries are charged
+    /// with the hash table's slack).
     #[must_use]
     pub fn cache_bytes(attrs: &serde_json::Value, mem: MemBudget) -> u64 {
         let boundary = attrs
@@ -532,6 +568,40 @@ mod tests {
             }
         }
         u
+    }
+
+    /// The mesh gives the boundary only where the solid is exactly its inside.
+    #[test]
+    fn a_closed_or_trimmed_solid_keeps_the_smoothed_boundary() {
+        let with = |k: &str, v: u64| {
+            let mut a = serde_json::json!({"stages": {"voxelize": {"result": {
+                "cavity_voxels": 0, "closing_voxels": 0, "removed_voxels": 0}}}});
+            a["stages"]["voxelize"]["result"][k] = v.into();
+            a
+        };
+        assert!(Boundary::solid_is_the_mesh(&with("closing_voxels", 0)));
+        for k in ["cavity_voxels", "closing_voxels", "removed_voxels"] {
+            assert!(!Boundary::solid_is_the_mesh(&with(k, 12)), "{k}");
+        }
+        let star = serde_json::json!({"input": {"path": null, "builtin": "starfish"}});
+        let spec = GridSpec {
+            shape: [8; 3],
+            origin: [0.0; 3],
+            spacing: 1.0,
+            chunk: [8; 3],
+            unit: None,
+        };
+        let mut closed = with("closing_voxels", 3);
+        closed["input"] = star["input"].clone();
+        let b = Boundary::for_run(&closed, &spec, MemBudget::default());
+        assert!(b.mesh.is_none() && b.problem.is_none());
+        assert_eq!(b.name(), BOUNDARY_SMOOTHED);
+        let mut open = with("closing_voxels", 0);
+        open["input"] = star["input"].clone();
+        assert_eq!(
+            Boundary::for_run(&open, &spec, MemBudget::default()).name(),
+            BOUNDARY_MESH
+        );
     }
 
     /// A sphere of radius `r` around (c, c, c): an icosahedron split four times (5,120
