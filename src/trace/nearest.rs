@@ -147,6 +147,13 @@ impl SurfaceIndex {
         self
     }
 
+    /// Bytes at most an index of `triangles` triangles holds without its cache: their
+    /// corners, and at most one node a triangle (leaves hold two to four).
+    #[must_use]
+    pub fn bytes_for(triangles: usize) -> u64 {
+        (triangles * (std::mem::size_of::<[Vec3; 3]>() + std::mem::size_of::<Node>())) as u64
+    }
+
     /// Bytes the index holds, its cache full.
     #[must_use]
     pub fn bytes(&self) -> u64 {
@@ -400,6 +407,7 @@ mod tests {
             ]);
         }
         let index = SurfaceIndex::new(&v, &t);
+        assert!(index.bytes() <= SurfaceIndex::bytes_for(t.len()));
         let mut found = 0;
         for z in 0..25 {
             for y in 0..25 {

@@ -195,18 +195,38 @@ impl Boundary {
             return Self::default();
         }
         let cache = Self::cache_bytes(attrs, mem);
-        if let Some(mesh) = loaded {
-            return Self::of_mesh(mesh, spec, cache);
-        }
-        match super::seeds::input_surface(attrs) {
-            Ok(Some(mesh)) => Self::of_mesh(&mesh, spec, cache),
-            Ok(None) => Self::default(),
-            Err(problem) => Self {
-                mesh: None,
-                problem: Some(format!(
-                    "{problem}; the boundary nodes' sub-voxel values come from the smoothed voxel solid instead"
-                )),
+        let read;
+        let mesh = match loaded {
+            Some(mesh) => mesh,
+            None => match super::seeds::input_surface(attrs) {
+                Ok(Some(mesh)) => {
+                    read = mesh;
+                    &read
+                }
+                Ok(None) => return Self::default(),
+                Err(problem) => return Self::smoothed_because(&problem),
             },
+        };
+        // The index stays for the whole stage: a mesh too large for the budget gives
+        // way to the smoothed solid rather than stop the stage.
+        let index = SurfaceIndex::bytes_for(mesh.triangles.len());
+        if index > mem.work_bytes() / 4 {
+            return Self::smoothed_because(&format!(
+                "the input mesh's {} triangles need up to {} as an index, more than a quarter of --mem {mem} (a larger --mem uses the mesh)",
+                mesh.triangles.len(),
+                crate::grid::human(index)
+            ));
+        }
+        Self::of_mesh(mesh, spec, cache)
+    }
+
+    /// The smoothed solid, with `problem` to warn about.
+    fn smoothed_because(problem: &str) -> Self {
+        Self {
+            mesh: None,
+            problem: Some(format!(
+                "{problem}; the boundary nodes' sub-voxel values come from the smoothed voxel solid instead"
+            )),
         }
     }
 
@@ -602,6 +622,13 @@ mod tests {
             Boundary::for_run(&open, &spec, MemBudget::default()).name(),
             BOUNDARY_MESH
         );
+        // A budget the mesh's index does not fit: the smoothed solid, saying why.
+        let tight = MemBudget(crate::grid::BASE_BYTES + (1 << 20));
+        let small = Boundary::for_run(&open, &spec, tight);
+        assert_eq!(small.name(), BOUNDARY_SMOOTHED);
+        assert!(small
+            .problem
+            .is_some_and(|p| p.contains("triangles need up to")));
     }
 
     /// A sphere of radius `r` around (c, c, c): an icosahedron split four times (5,120
