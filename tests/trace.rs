@@ -474,6 +474,40 @@ fn a_sphere_maps_onto_the_sphere_without_flips_and_exports_whole_files() {
     assert!(err.contains("the map used the mesh"), "{err}");
 }
 
+/// A mesh given by a relative path is found again by the later stages from any
+/// working directory: the run records the absolute path.
+#[test]
+fn later_stages_find_a_relative_input_from_anywhere() {
+    use crate::common::{sphere, write_obj};
+    let d = tempfile::tempdir().unwrap();
+    write_obj(
+        &d.path().join("ball.obj"),
+        &sphere(DVec3::ZERO, 1.0, 12, 24),
+    );
+    let run = d.path().join("ball.harmap");
+    let r = run.to_str().unwrap();
+    let in_dir = |dir: &Path, args: &[&str]| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_harmap"))
+            .args(args)
+            .current_dir(dir)
+            .output()
+            .unwrap();
+        ok(&o);
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    in_dir(
+        d.path(),
+        &["-q", "voxelize", "ball.obj", "-o", r, "--resolution", "24"],
+    );
+    let elsewhere = tempfile::tempdir().unwrap();
+    in_dir(elsewhere.path(), &["-q", "solve", r]);
+    let err = in_dir(elsewhere.path(), &["trace", r, "--progress", "never"]);
+    assert!(!err.contains("warning"), "{err}");
+    let a = RunDir::open(&run).unwrap().attrs().unwrap();
+    assert!(Path::new(a["input"]["path"].as_str().unwrap()).is_absolute());
+    assert_eq!(a["stages"]["trace"]["result"]["boundary"], "input mesh");
+}
+
 /// spot (../shared/data; skipped without it) at resolution 96. Where its horns meet the
 /// head, boundary values from the smoothed voxel solid fold the field: the seeds there
 /// slide along the surface and 26 triangles flip. With the mesh's own depths and

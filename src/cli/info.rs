@@ -295,6 +295,12 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
             write!(out, ": {}", s.join(", "))?;
         }
         writeln!(out, "), stop radius {} voxels", v["stop_radius"])?;
+        if let Some(b) = v.get("boundary").and_then(Value::as_str) {
+            writeln!(
+                out,
+                "map field: boundary nodes' sub-voxel values from the {b}"
+            )?;
+        }
     }
     Ok(())
 }

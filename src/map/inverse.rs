@@ -205,8 +205,13 @@ impl Inverse {
             Boundary::default()
         } else {
             let mut b = Boundary::for_run(&attrs, &spec, mem);
-            if let (Some(p), true) = (b.problem.as_mut(), mapped) {
-                p.push_str("; the map used the mesh, so next to the boundary the inverse follows another field");
+            if mapped && b.mesh.is_none() {
+                let why = b.problem.take().unwrap_or_else(|| {
+                    "the input mesh is not used for this run now (--close, filled cavities or removed pieces)".into()
+                });
+                b.problem = Some(format!(
+                    "{why}; the map used the mesh, so next to the boundary the inverse follows another field"
+                ));
             }
             b
         };
@@ -602,9 +607,11 @@ pub fn inverse_csv(
         }
         rows.push(v);
     }
-    let stop_radius = run
-        .attrs()?
-        .pointer("/stages/trace/options/stop_radius")
+    // The map's stop ball (the trace may have been run again with another since).
+    let attrs = run.attrs()?;
+    let stop_radius = attrs
+        .pointer("/stages/map/result/stop_radius")
+        .or_else(|| attrs.pointer("/stages/trace/options/stop_radius"))
         .and_then(serde_json::Value::as_f64);
     let inv = Inverse::new(run, stop_radius, mem)?;
     if let Some(problem) = &inv.boundary().problem {

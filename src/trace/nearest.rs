@@ -126,7 +126,10 @@ impl SurfaceIndex {
             })
             .map(|t| t.map(|i| vertices[i as usize]))
             .collect();
-        let mut nodes = Vec::with_capacity(2 * tris.len() / LEAF + 1);
+        tris.shrink_to_fit();
+        // At most one node a triangle: leaves hold two to four (one only when the mesh
+        // has one triangle), so there are fewer inner nodes than triangles.
+        let mut nodes = Vec::with_capacity(tris.len());
         if !tris.is_empty() {
             let len = tris.len();
             build(&mut tris, 0, len, &mut nodes);
@@ -431,6 +434,32 @@ mod tests {
         assert!(found > 1000 && found < 15_000, "{found}");
     }
 
+    /// The tree has at most one node a triangle, whatever the count, and the index
+    /// holds no more than [`SurfaceIndex::bytes_for`] says.
+    #[test]
+    fn the_tree_has_at_most_a_node_a_triangle() {
+        for n in 1..300u32 {
+            let v: Vec<Vec3> = (0..n + 2)
+                .map(|i| {
+                    let t = f64::from(i);
+                    Vec3::new(t, (t * 0.7).sin() * 3.0, (t * 1.3).cos() * 2.0)
+                })
+                .collect();
+            let t: Vec<[u32; 3]> = (0..n).map(|i| [i, i + 1, i + 2]).collect();
+            let index = SurfaceIndex::new(&v, &t);
+            assert_eq!(index.tris.len(), n as usize);
+            assert!(
+                index.nodes.len() <= n as usize,
+                "{n}: {}",
+                index.nodes.len()
+            );
+            let held = (index.tris.capacity() * std::mem::size_of::<[Vec3; 3]>()
+                + index.nodes.capacity() * std::mem::size_of::<Node>())
+                as u64;
+            assert!(held <= SurfaceIndex::bytes_for(t.len()), "{n}");
+        }
+    }
+
     /// Answers from the cache are those computed; a full cache still answers.
     #[test]
     fn cached_answers_are_the_computed_ones() {
@@ -473,7 +502,6 @@ mod tests {
         let index = SurfaceIndex::new(&v, &t);
         let n = index.nearest(Vec3::new(0.2, 0.2, 1.0)).expect("found");
         assert!((n.distance - 1.0).abs() < 1e-12);
-        assert!(n.point.is_finite());
         // Only the good triangle is left: nothing within reach past its corner b.
         assert!(index.nearest(Vec3::new(3.5, 0.0, 0.0)).is_none());
         assert!(SurfaceIndex::new(&[], &[]).nearest(Vec3::ZERO).is_none());

@@ -90,10 +90,7 @@ pub fn input_surface(attrs: &serde_json::Value) -> Result<Option<TriMesh>, Strin
         return Ok(None);
     }
     if !path.exists() {
-        return Err(format!(
-            "{}: the run's input mesh is gone; surface seeds need it (or use --seeds boundary)",
-            path.display()
-        ));
+        return Err(format!("{}: the run's input mesh is gone", path.display()));
     }
     if let Some(want) = input.get("sha256").and_then(|s| s.as_str()) {
         let got = crate::input::sha256_file(path).map_err(|e| e.to_string())?;

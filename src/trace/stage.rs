@@ -460,7 +460,7 @@ pub fn trace_seeds(
         }
         SeedKind::Surface => {
             let mesh = seeds::input_surface(&attrs)
-                .map_err(options)?
+                .map_err(|e| options(format!("{e}; surface seeds need it (or use --seeds boundary)")))?
                 .ok_or_else(|| {
                     options(format!(
                         "{}: the input is not a surface mesh; --seeds surface needs one (use --seeds boundary)",

@@ -212,9 +212,10 @@ impl Boundary {
         let index = SurfaceIndex::bytes_for(mesh.triangles.len());
         if index > mem.work_bytes() / 4 {
             return Self::smoothed_because(&format!(
-                "the input mesh's {} triangles need up to {} as an index, more than a quarter of --mem {mem} (a larger --mem uses the mesh)",
+                "the input mesh's {} triangles need up to {} as an index, more than a quarter of the {} --mem {mem} leaves for data (a larger --mem uses the mesh)",
                 mesh.triangles.len(),
-                crate::grid::human(index)
+                crate::grid::human(index),
+                crate::grid::human(mem.work_bytes())
             ));
         }
         Self::of_mesh(mesh, spec, cache)
