@@ -474,6 +474,41 @@ fn a_sphere_maps_onto_the_sphere_without_flips_and_exports_whole_files() {
     assert!(err.contains("the map used the mesh"), "{err}");
 }
 
+/// Without an input mesh, surface seeds start from the surface nets of the labels: on
+/// the standard ball, every vertex reaches the center and no triangle flips; the OBJ
+/// sphere export finds the same surface again.
+#[test]
+fn surface_seeds_of_a_label_run_come_from_its_voxels() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = solved_ball(dir.path(), 40, 16);
+    let o = TraceOptions::for_seeds(SeedKind::Surface);
+    let (rep, t) = run_trace(&run, &o);
+    assert_eq!(rep.boundary, "smoothed voxel solid");
+    assert_eq!(rep.stops["reached"], rep.seeds, "{:?}", rep.stops);
+    let m = rep.surface.expect("surface seeds measure the map");
+    assert!(m.triangles > 1000, "{m:?}");
+    assert_eq!(m.measured, m.triangles);
+    assert_eq!(m.flipped, 0);
+    // Each vertex arrives near its own direction from the center (a radial map).
+    let err = radial_errors(&run, &t);
+    let (med, max) = (err[err.len() / 2], err[err.len() - 1]);
+    eprintln!("ball 40, surface nets: median {med:.3}, max {max:.3} degrees");
+    assert!(med < 0.5 && max < 1.5, "median {med}, max {max}");
+    let obj = dir.path().join("sphere.obj");
+    ok(&harmap(&[
+        "-q",
+        "export",
+        run.to_str().unwrap(),
+        "--format",
+        "obj-sphere",
+        "-o",
+        obj.to_str().unwrap(),
+    ]));
+    let text = std::fs::read_to_string(&obj).unwrap();
+    let faces = text.lines().filter(|l| l.starts_with("f ")).count();
+    assert_eq!(faces as u64, m.triangles);
+}
+
 /// A mesh given by a relative path is found again by the later stages from any
 /// working directory: the run records the absolute path.
 #[test]

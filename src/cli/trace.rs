@@ -21,9 +21,11 @@ use super::Global;
 /// vanishing gradient, or used its steps. The arrival direction from the center gives
 /// theta (polar) and psi (azimuth): the seed's place on the unit sphere.
 ///
-/// Seeds: every boundary voxel (default), or with --seeds surface the vertices of the
-/// input mesh, whose triangles then give the bijectivity numbers: triangles flipped on
-/// the sphere, seeds landing on seeds from elsewhere, and area and angle distortion.
+/// Seeds: every boundary voxel (default), or with --seeds surface the vertices of a
+/// surface: the input mesh's own, or for label volumes and molecules a surface extracted
+/// from the labels (surface nets, on the boundary between the solid's voxels and the
+/// outside). Its triangles then give the bijectivity numbers: triangles flipped on the
+/// sphere, seeds landing on seeds from elsewhere, and area and angle distortion.
 ///
 /// The grid is cut into tiles; tiles with streamlines waiting are built into a cache
 /// that stays within --mem and processed in parallel. Results do not depend on the tile
@@ -50,7 +52,8 @@ pub struct Args {
 /// Trace flags, shared with `harmap run`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct TraceArgs {
-    /// Seeds: every boundary voxel, or the vertices of the input surface.
+    /// Seeds: every boundary voxel, or the vertices of the input surface (of the labels'
+    /// surface nets for inputs that are not meshes).
     #[arg(long, value_enum, default_value_t = SeedArg::Boundary)]
     pub seeds: SeedArg,
     /// Trace a deterministic subset of N seeds (the same N gives the same seeds).
@@ -103,7 +106,8 @@ pub struct TraceArgs {
 pub enum SeedArg {
     /// Every boundary voxel.
     Boundary,
-    /// The vertices of the input mesh (or the built-in starfish).
+    /// The vertices of the input mesh (or the built-in starfish); for other inputs, of
+    /// the surface nets of the labels.
     Surface,
 }
 

@@ -146,7 +146,6 @@ pub fn seeds_csv(run: &RunDir, dest: &Path) -> Result<u64, crate::Error> {
 /// not reach the center sit at the origin (listed in a comment).
 pub fn obj_sphere(run: &RunDir, dest: &Path) -> Result<u64, crate::Error> {
     let t = read_seeds(run)?;
-    let attrs = run.attrs()?;
     if t.vertex.is_empty() {
         return Err(ExportError::Unavailable(format!(
             "{}: the seeds are boundary voxels, which have no triangles; trace with --seeds surface for an OBJ sphere",
@@ -154,9 +153,7 @@ pub fn obj_sphere(run: &RunDir, dest: &Path) -> Result<u64, crate::Error> {
         ))
         .into());
     }
-    let mesh = crate::trace::seeds::input_surface(&attrs)
-        .map_err(ExportError::Unavailable)?
-        .ok_or_else(|| ExportError::Unavailable("the run's input has no surface".into()))?;
+    let (mesh, _) = crate::trace::seeds::seed_surface(run)?;
     let mut sphere = vec![None; mesh.vertices.len()];
     for i in 0..t.vertex.len() {
         sphere[t.vertex[i] as usize] = t.sphere(i).map(|s| (s, t.theta[i], t.psi[i]));

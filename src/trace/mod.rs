@@ -13,6 +13,7 @@
 //!
 //! `trace` writes the seed table `RUN/seeds/` and records `harmap.stages.trace`.
 
+pub mod extract;
 pub mod field;
 pub mod integrate;
 pub mod metrics;

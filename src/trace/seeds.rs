@@ -110,6 +110,23 @@ pub fn input_surface(attrs: &serde_json::Value) -> Result<Option<TriMesh>, Strin
     Ok(Some(mesh))
 }
 
+/// The surface whose vertices surface seeds start from, and whether it is the input's
+/// own: the input mesh (or the built-in starfish), or for other inputs (label volumes,
+/// molecules, the standard ball) the surface nets of the solid's labels
+/// ([`super::extract`]).
+pub fn seed_surface(run: &crate::run::RunDir) -> Result<(TriMesh, bool), crate::Error> {
+    let attrs = run.attrs()?;
+    match input_surface(&attrs) {
+        Ok(Some(mesh)) => Ok((mesh, true)),
+        Ok(None) => {
+            let labels = run.open_image::<u8>("labels")?;
+            let workers = rayon::current_num_threads();
+            Ok((super::extract::from_labels(&labels, workers)?, false))
+        }
+        Err(e) => Err(super::TraceError::Options(e).into()),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -451,7 +451,9 @@ pub fn trace_seeds(
     let attrs = run.require_stage("solve")?;
     let spec = run.grid()?;
 
-    // Seeds.
+    // Seeds. (Whether the surface seeds' mesh is the input's own, which then also
+    // gives the field its boundary values.)
+    let mut input_mesh = false;
     let (mut seed_pts, mut vertex, surface) = match opts.seeds {
         SeedKind::Boundary => {
             let labels = run.open_image::<u8>("labels")?;
@@ -459,14 +461,15 @@ pub fn trace_seeds(
             (seeds::boundary(&labels, workers)?, Vec::new(), None)
         }
         SeedKind::Surface => {
-            let mesh = seeds::input_surface(&attrs)
-                .map_err(|e| options(format!("{e}; surface seeds need it (or use --seeds boundary)")))?
-                .ok_or_else(|| {
-                    options(format!(
-                        "{}: the input is not a surface mesh; --seeds surface needs one (use --seeds boundary)",
-                        run.root().display()
-                    ))
-                })?;
+            let (mesh, own) = match seeds::seed_surface(run) {
+                Err(crate::Error::Trace(TraceError::Options(e))) => {
+                    return Err(options(format!(
+                        "{e}; surface seeds need it (or use --seeds boundary)"
+                    )));
+                }
+                other => other?,
+            };
+            input_mesh = own;
             let pts: Vec<DVec3> = mesh
                 .vertices
                 .iter()
@@ -491,8 +494,8 @@ pub fn trace_seeds(
         )));
     }
     let boundary = match &surface {
-        Some(mesh) => Boundary::with_mesh(&attrs, &spec, opts.mem, Some(mesh)),
-        None => Boundary::for_run(&attrs, &spec, opts.mem),
+        Some(mesh) if input_mesh => Boundary::with_mesh(&attrs, &spec, opts.mem, Some(mesh)),
+        _ => Boundary::for_run(&attrs, &spec, opts.mem),
     };
     if let Some(problem) = &boundary.problem {
         progress.warn(problem);

@@ -1,0 +1,214 @@
+//! A surface for runs without an input mesh (label volumes, molecules, the standard
+//! ball): surface nets over the solid's labels, block by block.
+//!
+//! Every cell of the grid (the cube between 2 x 2 x 2 voxel centers) whose corners are
+//! part solid (labels 1-3) and part not gets one vertex: the mean of the midpoints of its
+//! edges that cross between the two. Every pair of neighbouring voxels of which one is
+//! solid gets a quad (two triangles) joining the vertices of the four cells around the
+//! edge between them, wound so that its normal points out of the solid. The vertices lie
+//! on the boundary between the solid's voxels and the outside, half a voxel from both.
+//!
+//! Out of core: a block reads its labels with one more voxel on every side and yields
+//! the vertices of the cells whose lowest corner it holds and the quads of the edges
+//! whose lower end it holds. The vertices are then numbered in the grid's C order of
+//! their cells and the quads sorted by their edges, so the mesh does not depend on the
+//! blocks or the threads. It takes memory in proportion to the surface, not the grid.
+//! (Crates for surface nets work on one array in memory, with the seams between chunks
+//! left to the caller; the seams are what this module is about.)
+
+use glam::DVec3;
+
+use crate::grid::{BlockStore, GridError};
+use crate::input::TriMesh;
+
+/// Whether a label is part of the solid (boundary, interior, center).
+fn solid(label: u8) -> bool {
+    matches!(label, 1..=3)
+}
+
+/// What a block yields: vertices (cell key, voxel position x, y, z) and quads (edge key,
+/// the four cell keys in order around the edge, normal outward).
+type Part = (Vec<(u64, DVec3)>, Vec<(u64, [u64; 4])>);
+
+/// The surface of the solid in `labels`, in world coordinates, triangles wound outward.
+pub fn from_labels(labels: &dyn BlockStore<u8>, workers: usize) -> Result<TriMesh, GridError> {
+    let spec = labels.spec();
+    let n = spec.shape.map(|s| s as i64);
+    // Keys of cells and edges: the linear index of their lowest corner on the grid with
+    // one more node before and after on every axis (a cell may start at -1).
+    let key = |v: [i64; 3]| -> u64 {
+        (((v[0] + 1) * (n[1] + 2) + (v[1] + 1)) * (n[2] + 2) + (v[2] + 1)) as u64
+    };
+    let parts = crate::parallel::map_bounded(&spec.block_indices(), workers, |&b| {
+        let st = spec.block_start(b).map(|c| c as i64);
+        let sh = spec.block_shape(b).map(|c| c as usize);
+        let origin = st.map(|c| c - 1);
+        let shape = sh.map(|c| c + 2);
+        let block = labels.read_region(origin, shape, 0)?;
+        let at = |v: [i64; 3]| -> bool {
+            let l: [usize; 3] = std::array::from_fn(|a| (v[a] - origin[a]) as usize);
+            solid(block.data[block.offset(l[0], l[1], l[2])])
+        };
+        let mut part: Part = (Vec::new(), Vec::new());
+        for z in st[0]..st[0] + sh[0] as i64 {
+            for y in st[1]..st[1] + sh[1] as i64 {
+                for x in st[2]..st[2] + sh[2] as i64 {
+                    let v = [z, y, x];
+                    // The cell from v: corners v + (dz, dy, dx).
+                    let corner = |k: usize| {
+                        at([
+                            z + (k >> 2) as i64,
+                            y + (k >> 1 & 1) as i64,
+                            x + (k & 1) as i64,
+                        ])
+                    };
+                    let c: [bool; 8] = std::array::from_fn(corner);
+                    if c.iter().any(|&s| s) && !c.iter().all(|&s| s) {
+                        let (mut sum, mut count) = (DVec3::ZERO, 0.0);
+                        for i in 0..8usize {
+                            for bit in [1usize, 2, 4] {
+                                let j = i | bit;
+                                if j != i && c[i] != c[j] {
+                                    let p = |k: usize| {
+                                        DVec3::new(
+                                            (k & 1) as f64,
+                                            (k >> 1 & 1) as f64,
+                                            (k >> 2) as f64,
+                                        )
+                                    };
+                                    sum += (p(i) + p(j)) * 0.5;
+                                    count += 1.0;
+                                }
+                            }
+                        }
+                        let p = DVec3::new(x as f64, y as f64, z as f64) + sum / count;
+                        part.0.push((key(v), p));
+                    }
+                    // The edges from v along z, y and x.
+                    let here = c[0];
+                    for a in 0..3 {
+                        let mut w = v;
+                        w[a] += 1;
+                        if here == at(w) {
+                            continue;
+                        }
+                        // The two other axes, in cyclic order: (b, c) with a x b = c.
+                        let (ab, ac) = ((a + 1) % 3, (a + 2) % 3);
+                        let cell = |i: i64, j: i64| {
+                            let mut u = v;
+                            u[ab] -= i;
+                            u[ac] -= j;
+                            key(u)
+                        };
+                        // Around the edge against the right-hand rule for +a (axes in z,
+                        // y, x order are left-handed in x, y, z): reversed when the solid
+                        // is at the upper end.
+                        let q = [cell(0, 0), cell(1, 0), cell(1, 1), cell(0, 1)];
+                        let q = if here { [q[0], q[3], q[2], q[1]] } else { q };
+                        part.1.push((key(v) * 3 + a as u64, q));
+                    }
+                }
+            }
+        }
+        Ok::<_, GridError>(part)
+    })?;
+    let (mut verts, mut quads): Part = (Vec::new(), Vec::new());
+    for (v, q) in parts {
+        verts.extend(v);
+        quads.extend(q);
+    }
+    verts.sort_unstable_by_key(|v| v.0);
+    quads.sort_unstable_by_key(|q| q.0);
+    let id = |k: u64| {
+        verts
+            .binary_search_by_key(&k, |v| v.0)
+            .ok()
+            .map(|i| i as u32)
+    };
+    let mut triangles = Vec::with_capacity(quads.len() * 2);
+    for (_, q) in &quads {
+        let (Some(a), Some(b), Some(c), Some(d)) = (id(q[0]), id(q[1]), id(q[2]), id(q[3])) else {
+            continue;
+        };
+        triangles.push([a, b, c]);
+        triangles.push([a, c, d]);
+    }
+    let o = DVec3::from_array(spec.origin);
+    Ok(TriMesh {
+        vertices: verts.iter().map(|(_, p)| o + *p * spec.spacing).collect(),
+        triangles,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::{GridSpec, MemStore};
+
+    /// A ball of radius `r` voxels around the grid's middle, labelled 2 (interior), in
+    /// blocks of `chunk`.
+    fn ball(n: u64, r: f64, chunk: u64) -> (MemStore<u8>, u64) {
+        let spec = GridSpec {
+            shape: [n; 3],
+            origin: [-1.0, 2.0, 0.5],
+            spacing: 0.5,
+            chunk: [chunk; 3],
+            unit: None,
+        };
+        let store = MemStore::new(spec.clone(), 0u8);
+        let c = (n as f64 - 1.0) / 2.0;
+        let mut count = 0;
+        for b in spec.block_indices() {
+            let st = spec.block_start(b);
+            let sh = spec.block_shape(b);
+            let mut data = Vec::new();
+            for z in 0..sh[0] {
+                for y in 0..sh[1] {
+                    for x in 0..sh[2] {
+                        let p = [st[0] + z, st[1] + y, st[2] + x].map(|v| v as f64 - c);
+                        let inside = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() <= r;
+                        count += u64::from(inside);
+                        data.push(if inside { 2 } else { 0 });
+                    }
+                }
+            }
+            store.write_block(b, &data).unwrap();
+        }
+        (store, count)
+    }
+
+    #[test]
+    fn the_surface_of_a_ball_is_closed_outward_and_on_its_voxels_edge() {
+        let (store, count) = ball(24, 8.3, 8);
+        let m = from_labels(&store, 2).unwrap();
+        // Closed and of genus 0: V - E + F = 2 with E = 3F / 2.
+        assert_eq!(
+            m.vertices.len() as i64 - m.triangles.len() as i64 / 2,
+            2,
+            "{} vertices, {} triangles",
+            m.vertices.len(),
+            m.triangles.len()
+        );
+        // Wound outward, around about the solid voxels' volume (spacing 0.5).
+        let v = m.signed_volume();
+        let voxels = count as f64 * 0.125;
+        assert!(v > 0.0, "inward: {v}");
+        assert!((v / voxels - 1.0).abs() < 0.1, "{v} against {voxels}");
+        // Every vertex within a voxel of the sphere through the voxels' outer faces.
+        let c = DVec3::new(-1.0, 2.0, 0.5) + DVec3::splat(11.5 * 0.5);
+        for p in &m.vertices {
+            let r = (*p - c).length() / 0.5;
+            assert!((r - 8.3).abs() < 1.0, "{p}: {r} voxels from the center");
+        }
+    }
+
+    #[test]
+    fn the_surface_does_not_depend_on_the_blocks_or_threads() {
+        let (a, _) = ball(24, 8.3, 8);
+        let (b, _) = ball(24, 8.3, 5);
+        let (ma, mb) = (from_labels(&a, 2).unwrap(), from_labels(&b, 1).unwrap());
+        assert_eq!(ma.triangles, mb.triangles);
+        assert_eq!(ma.vertices, mb.vertices);
+        assert!(!ma.triangles.is_empty());
+    }
+}
