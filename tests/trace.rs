@@ -484,6 +484,7 @@ fn surface_seeds_of_a_label_run_come_from_its_voxels() {
     let o = TraceOptions::for_seeds(SeedKind::Surface);
     let (rep, t) = run_trace(&run, &o);
     assert_eq!(rep.boundary, "smoothed voxel solid");
+    assert_eq!(rep.seed_surface, Some("surface nets of the labels"));
     assert_eq!(rep.stops["reached"], rep.seeds, "{:?}", rep.stops);
     let m = rep.surface.expect("surface seeds measure the map");
     assert!(m.triangles > 1000, "{m:?}");
@@ -559,6 +560,7 @@ fn spot_maps_without_flips_on_the_mesh_boundary() {
     let opts = TraceOptions::for_seeds(SeedKind::Surface);
     let (rep, _) = run_trace(&out, &opts);
     assert_eq!(rep.boundary, "input mesh");
+    assert_eq!(rep.seed_surface, Some("input mesh"));
     assert_eq!(rep.stops["reached"], rep.seeds, "{:?}", rep.stops);
     let m = rep.surface.expect("surface seeds measure the map");
     assert_eq!(m.measured, m.triangles);

@@ -15,9 +15,10 @@ use super::{Global, UsageError};
 ///   csv              the seed table: x,y,z,theta,psi,phi,stop,stop_name,steps,length
 ///                    (+ vertex for surface seeds); angles in radians, empty where the
 ///                    streamline did not reach the center
-///   obj-sphere       the input surface with its vertices moved to the unit sphere at
-///                    their arrival directions, (psi, theta) as texture coordinates
-///                    (needs `harmap trace --seeds surface`)
+///   obj-sphere       the seeds' surface (the input mesh, or the labels' surface
+///                    nets) with its vertices moved to the unit sphere at their
+///                    arrival directions, (psi, theta) as texture coordinates (needs
+///                    `harmap trace --seeds surface`)
 ///   vtk-streamlines  the streamlines as VTK legacy polydata (binary) for ParaView:
 ///                    traced again with the options of the run's trace (or --sample N
 ///                    of its seeds), with cell data seed, stop, theta, psi and point data

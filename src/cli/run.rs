@@ -9,14 +9,16 @@ use harmap::run::RunDir;
 
 use super::progress::Bars;
 use super::solve::{MethodArg, SolveArgs};
+use super::trace::SeedArg;
 use super::voxelize::VoxelizeArgs;
 use super::{Global, UsageError};
 
 /// Run the pipeline on a shape: voxelization (labels and center), the solve (phi,
 /// multigrid; an interrupted solve resumes from its checkpoint), the trace (streamlines
-/// from the surface's vertices, or from the boundary voxels for other inputs), the
-/// full-volume map (theta and psi for every voxel, upwind) and the atlas picture (RUN's
-/// name with .atlas.png), then a summary.
+/// from the vertices of the input mesh, or for other inputs of the labels' surface nets,
+/// so that the summary has the bijectivity numbers; --seeds boundary traces from every
+/// boundary voxel instead), the full-volume map (theta and psi for every voxel, upwind)
+/// and the atlas picture (RUN's name with .atlas.png), then a summary.
 ///
 /// With no INPUT, runs on the built-in five-armed starfish, centered at its middle.
 /// Stages already done in RUN are skipped, so a run that was stopped is finished by
@@ -53,6 +55,11 @@ pub struct Args {
     /// Trace and map: radius of the stop ball, voxels [default: as `harmap trace`].
     #[arg(long, value_name = "VOXELS", help_heading = "Trace and map")]
     pub stop_radius: Option<f64>,
+    /// Trace: seeds. Surface: the vertices of the input mesh, or for other inputs of the
+    /// labels' surface nets (the summary then has the bijectivity numbers); boundary:
+    /// every boundary voxel (fewer steps a line: faster on large grids).
+    #[arg(long, value_enum, default_value_t = SeedArg::Surface, help_heading = "Trace and map")]
+    pub seeds: SeedArg,
     /// Map: trace from every voxel instead of the upwind transport.
     #[arg(long, help_heading = "Trace and map")]
     pub exact: bool,
@@ -138,16 +145,7 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     if harmap::run::stage_done(&attrs, "trace") && out.join("seeds").exists() {
         g.say("trace: already done (skipped; --force redoes every stage)");
     } else {
-        // Surface seeds when the input is a mesh: the bijectivity numbers need triangles.
-        let is_mesh = harmap::trace::seeds::input_surface(&attrs)
-            .ok()
-            .flatten()
-            .is_some();
-        let seeds = if is_mesh {
-            harmap::trace::SeedKind::Surface
-        } else {
-            harmap::trace::SeedKind::Boundary
-        };
+        let seeds = a.seeds.kind();
         let opts = harmap::trace::TraceOptions {
             stop_radius: a.stop_radius,
             mem: a.opts.mem,

@@ -101,6 +101,17 @@ pub struct TraceArgs {
     pub level_step: Option<f64>,
 }
 
+impl SeedArg {
+    /// The library's seed kind.
+    #[must_use]
+    pub fn kind(self) -> SeedKind {
+        match self {
+            SeedArg::Boundary => SeedKind::Boundary,
+            SeedArg::Surface => SeedKind::Surface,
+        }
+    }
+}
+
 /// `--seeds` values.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
 pub enum SeedArg {
@@ -115,10 +126,7 @@ impl TraceArgs {
     /// The library options.
     #[must_use]
     pub fn options(&self) -> TraceOptions {
-        let seeds = match self.seeds {
-            SeedArg::Boundary => SeedKind::Boundary,
-            SeedArg::Surface => SeedKind::Surface,
-        };
+        let seeds = self.seeds.kind();
         let default = Rk45::for_seeds(seeds);
         TraceOptions {
             seeds,

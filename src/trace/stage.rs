@@ -105,6 +105,9 @@ pub struct TraceReport {
     pub field: &'static str,
     /// Where its boundary nodes' sub-voxel values came from ([`Boundary::name`]).
     pub boundary: &'static str,
+    /// For surface seeds, whose vertices they are: "input mesh" or "surface nets of the
+    /// labels".
+    pub seed_surface: Option<&'static str>,
 }
 
 /// The seed table as stored in `RUN/seeds/`.
@@ -187,7 +190,7 @@ fn write_seeds(
                 "steps": "accepted RK45 steps",
                 "length": "arc length, world units",
                 "end": "world x, y, z where the streamline ended",
-                "vertex": "surface seeds: vertex index in the input mesh",
+                "vertex": "surface seeds: vertex index in the seeds' surface (stages.trace.result.seed_surface)",
             },
             "stop_codes": stops,
         }}
@@ -272,6 +275,8 @@ pub struct Traced {
     pub stats: TileStats,
     /// Seconds spent tracing.
     pub seconds: f64,
+    /// For surface seeds, whether their surface is the input mesh.
+    pub input_mesh: bool,
     /// Where the field's boundary values came from ([`Boundary::name`]).
     pub boundary: &'static str,
 }
@@ -526,6 +531,7 @@ pub fn trace_seeds(
         tiling,
         stats,
         seconds: t.elapsed().as_secs_f64(),
+        input_mesh,
         boundary: boundary_name,
     })
 }
@@ -673,6 +679,13 @@ pub fn trace(
         lines_per_second: n as f64 / tr.seconds.max(1e-9),
         field: super::field::FIELD,
         boundary: tr.boundary,
+        seed_surface: tr.surface.as_ref().map(|_| {
+            if tr.input_mesh {
+                "input mesh"
+            } else {
+                "surface nets of the labels"
+            }
+        }),
     };
     write_seeds(run.root(), "seeds.partial", &table, opts.seeds)?;
     run.commit_image("seeds")?;
