@@ -23,6 +23,15 @@ pub struct Args {
     pub json: bool,
 }
 
+/// The line that says where a stage's field took its boundary values from (`result`'s
+/// `boundary`), if it recorded it.
+fn boundary_line(out: &mut impl Write, label: &str, result: &Value) -> std::io::Result<()> {
+    match result.get("boundary").and_then(Value::as_str) {
+        Some(b) => writeln!(out, "{label} boundary nodes' sub-voxel values from the {b}"),
+        None => Ok(()),
+    }
+}
+
 fn summary(attrs: &Value) -> Value {
     let mut s = json!({});
     if let Some(v) = attrs.pointer("/stages/voxelize/result") {
@@ -242,12 +251,7 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
             v["mean_steps"].as_f64().unwrap_or(f64::NAN),
             v["stop_radius"]
         )?;
-        if let Some(b) = v.get("boundary").and_then(Value::as_str) {
-            writeln!(
-                out,
-                "field:    boundary nodes' sub-voxel values from the {b}"
-            )?;
-        }
+        boundary_line(&mut out, "field:   ", v)?;
         writeln!(
             out,
             "sphere:   {} seeds within {} degrees of a seed more than {} voxels away",
@@ -295,12 +299,7 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
             write!(out, ": {}", s.join(", "))?;
         }
         writeln!(out, "), stop radius {} voxels", v["stop_radius"])?;
-        if let Some(b) = v.get("boundary").and_then(Value::as_str) {
-            writeln!(
-                out,
-                "map field: boundary nodes' sub-voxel values from the {b}"
-            )?;
-        }
+        boundary_line(&mut out, "map field:", v)?;
     }
     Ok(())
 }

@@ -196,38 +196,40 @@ pub fn from_labels(labels: &dyn BlockStore<u8>, workers: usize) -> Result<TriMes
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::grid::{GridSpec, MemStore};
+    use crate::grid::{fill_with, GridSpec, MemStore};
 
-    /// A ball of radius `r` voxels around the grid's middle, labelled 2 (interior), in
-    /// blocks of `chunk`.
-    fn ball(n: u64, r: f64, chunk: u64) -> (MemStore<u8>, u64) {
+    /// Labels 2 where `inside` holds ([z, y, x]), 0 elsewhere, on an `n`^3 grid from
+    /// `origin` with `spacing`, in blocks of `chunk`.
+    fn labels(
+        n: u64,
+        chunk: u64,
+        origin: [f64; 3],
+        spacing: f64,
+        inside: impl Fn([u64; 3]) -> bool + Sync + Send,
+    ) -> MemStore<u8> {
         let spec = GridSpec {
             shape: [n; 3],
-            origin: [-1.0, 2.0, 0.5],
-            spacing: 0.5,
+            origin,
+            spacing,
             chunk: [chunk; 3],
             unit: None,
         };
-        let store = MemStore::new(spec.clone(), 0u8);
+        let store = MemStore::new(spec, 0u8);
+        fill_with(&store, 1, |v| if inside(v) { 2 } else { 0 }).unwrap();
+        store
+    }
+
+    /// A ball of radius `r` voxels around the grid's middle, and its voxel count.
+    fn ball(n: u64, r: f64, chunk: u64) -> (MemStore<u8>, u64) {
         let c = (n as f64 - 1.0) / 2.0;
-        let mut count = 0;
-        for b in spec.block_indices() {
-            let st = spec.block_start(b);
-            let sh = spec.block_shape(b);
-            let mut data = Vec::new();
-            for z in 0..sh[0] {
-                for y in 0..sh[1] {
-                    for x in 0..sh[2] {
-                        let p = [st[0] + z, st[1] + y, st[2] + x].map(|v| v as f64 - c);
-                        let inside = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() <= r;
-                        count += u64::from(inside);
-                        data.push(if inside { 2 } else { 0 });
-                    }
-                }
-            }
-            store.write_block(b, &data).unwrap();
-        }
-        (store, count)
+        let inside = |v: [u64; 3]| {
+            let p = v.map(|v| v as f64 - c);
+            (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() <= r
+        };
+        let count = (0..n * n * n)
+            .filter(|i| inside([i / (n * n), i / n % n, i % n]))
+            .count() as u64;
+        (labels(n, chunk, [-1.0, 2.0, 0.5], 0.5, inside), count)
     }
 
     #[test]
@@ -251,29 +253,7 @@ mod tests {
 
     /// Labels 2 at `voxels` ([z, y, x]) in an `n`^3 grid of blocks of `chunk`.
     fn voxels(n: u64, chunk: u64, voxels: &[[u64; 3]]) -> MemStore<u8> {
-        let spec = GridSpec {
-            shape: [n; 3],
-            origin: [0.0; 3],
-            spacing: 1.0,
-            chunk: [chunk; 3],
-            unit: None,
-        };
-        let store = MemStore::new(spec.clone(), 0u8);
-        for b in spec.block_indices() {
-            let st = spec.block_start(b);
-            let sh = spec.block_shape(b);
-            let mut data = Vec::new();
-            for z in 0..sh[0] {
-                for y in 0..sh[1] {
-                    for x in 0..sh[2] {
-                        let v = [st[0] + z, st[1] + y, st[2] + x];
-                        data.push(if voxels.contains(&v) { 2 } else { 0 });
-                    }
-                }
-            }
-            store.write_block(b, &data).unwrap();
-        }
-        store
+        labels(n, chunk, [0.0; 3], 1.0, |v| voxels.contains(&v))
     }
 
     /// Every edge in exactly two triangles, once each way (a closed, consistently wound

@@ -372,23 +372,12 @@ mod tests {
     /// A thick ring (genus 1) whose hole is a slit 2 voxels wide.
     fn slit_ring(spec: &GridSpec) -> MemStore<u8> {
         let s = MemStore::new(spec.clone(), 0u8);
-        for b in spec.block_indices() {
-            let st = spec.block_start(b);
-            let bs = spec.block_shape(b);
-            let mut d = Vec::new();
-            for z in 0..bs[0] {
-                for y in 0..bs[1] {
-                    for x in 0..bs[2] {
-                        let (z, y, x) = (st[0] + z, st[1] + y, st[2] + x);
-                        let slab =
-                            (8..16).contains(&z) && (6..34).contains(&y) && (6..34).contains(&x);
-                        let slit = (19..21).contains(&y) && (12..28).contains(&x);
-                        d.push(u8::from(slab && !slit));
-                    }
-                }
-            }
-            s.write_block(b, &d).unwrap();
-        }
+        crate::grid::fill_with(&s, 1, |[z, y, x]| {
+            let slab = (8..16).contains(&z) && (6..34).contains(&y) && (6..34).contains(&x);
+            let slit = (19..21).contains(&y) && (12..28).contains(&x);
+            u8::from(slab && !slit)
+        })
+        .unwrap();
         s
     }
 
