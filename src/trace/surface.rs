@@ -110,12 +110,16 @@ impl Bits {
         let shape = u.shape;
         let words = shape[2].div_ceil(64) + 1;
         let mut bits = vec![0u64; shape[0] * shape[1] * words];
-        for (r, row) in u.data.chunks_exact(shape[2]).enumerate() {
-            let out = &mut bits[r * words..(r + 1) * words];
-            for (x, &v) in row.iter().enumerate() {
-                if solid(v) {
-                    out[x / 64] |= 1 << (x % 64);
-                }
+        for (row, out) in u
+            .data
+            .chunks_exact(shape[2])
+            .zip(bits.chunks_exact_mut(words))
+        {
+            for (chunk, word) in row.chunks(64).zip(out.iter_mut()) {
+                *word = chunk
+                    .iter()
+                    .enumerate()
+                    .fold(0, |w, (b, &v)| w | u64::from(solid(v)) << b);
             }
         }
         Self {
@@ -128,16 +132,27 @@ impl Bits {
     /// The WIDTH bits of row (z, y) from x - RADIUS (x >= RADIUS).
     #[inline]
     fn window(&self, z: usize, y: usize, x: usize) -> usize {
+        (self.bits_from(z, y, x - RADIUS) & ((1 << WIDTH) - 1)) as usize
+    }
+
+    /// The bits of row (z, y) from x on (at least 64 of them, zero beyond the row).
+    #[inline]
+    fn bits_from(&self, z: usize, y: usize, x: usize) -> u64 {
         let row = &self.rows[(z * self.shape[1] + y) * self.words..];
-        let s = x - RADIUS;
-        let (w, b) = (s / 64, s % 64);
+        let (w, b) = (x / 64, x % 64);
         let lo = row[w] >> b;
-        let v = if b == 0 {
+        if b == 0 {
             lo
         } else {
             lo | (row[w + 1] << (64 - b))
-        };
-        (v & ((1 << WIDTH) - 1)) as usize
+        }
+    }
+
+    /// Whether any of the 3 x 3 x 3 nodes around (z, y, x) is solid (all three at least
+    /// 1).
+    #[inline]
+    fn any_around(&self, z: usize, y: usize, x: usize) -> bool {
+        (z - 1..=z + 1).any(|z| (y - 1..=y + 1).any(|y| self.bits_from(z, y, x - 1) & 7 != 0))
     }
 }
 
@@ -333,11 +348,18 @@ pub fn corrections(
     // The nodes to evaluate, as local indices of `u` (z, y, x).
     // Local indices fit in u16: a block is far smaller than 65536 nodes a side.
     let mut queries: Vec<([u16; 3], Query)> = Vec::new();
+    let bits = Bits::of(u);
     for z in 0..inner[0] {
         for y in 0..inner[1] {
             let src = u.offset(z + REACH, y + REACH, REACH);
             let dst = out.offset(z, y, 0);
-            out.data[dst..dst + inner[2]].copy_from_slice(&u.data[src..src + inner[2]]);
+            let row = &u.data[src..src + inner[2]];
+            out.data[dst..dst + inner[2]].copy_from_slice(row);
+            // Most rows hold neither a boundary node (u = 0) nor an exterior layer
+            // (u < 0): interior (u > 0) and unsolved (NaN) nodes need nothing.
+            if !row.iter().any(|&v| v <= 0.0) {
+                continue;
+            }
             for x in 0..inner[2] {
                 let o = src + x;
                 let v = u.data[o];
@@ -355,15 +377,8 @@ pub fn corrections(
                         .iter()
                         .zip(&inner)
                         .all(|(&c, &n)| c > 0 && c + 1 < n);
-                    // The 3 x 3 x 3 nodes from `corner`: all the nodes its cells have.
-                    let corner = o - strides[0] - strides[1] - 1;
-                    let shares_a_cell = || {
-                        (0..27).any(|k| {
-                            let d = (k / 9) * strides[0] + (k / 3 % 3) * strides[1] + k % 3;
-                            solid(u.data[corner + d])
-                        })
-                    };
-                    if in_box && shares_a_cell() {
+                    // The 3 x 3 x 3 nodes around it: all the nodes its cells have.
+                    if in_box && bits.any_around(l[0], l[1], l[2]) {
                         queries.push((l.map(|c| c as u16), Query::Outside));
                     }
                 }
@@ -393,7 +408,6 @@ pub fn corrections(
         normals.sort_unstable_by_key(|n| n.0);
         return Corrections { u: out, normals };
     }
-    let bits = Bits::of(u);
     let mut column = Column::default();
     for &(l, kind) in &queries {
         let l = l.map(usize::from);
