@@ -303,21 +303,22 @@ impl Tile {
     #[must_use]
     pub fn spline(&self, p: DVec3) -> Option<DVec3> {
         let (base, t) = self.stencil(p)?;
-        let strides = self.strides();
+        let [sz, sy, _] = self.strides();
         let [wz, wy, wx] = t.map(|t| {
             let t = t as f32;
             let (lo, hi) = (0.5 - t, 0.5 + t);
             [0.5 * lo * lo, 0.75 - t * t, 0.5 * hi * hi]
         });
-        let n = &self.nodes;
-        let mut acc = Vec4::ZERO;
-        for (dz, &a) in wz.iter().enumerate() {
-            for (dy, &b) in wy.iter().enumerate() {
-                let o = base + dz * strides[0] + dy * strides[1];
-                let row = &n[o..o + 3];
-                acc += (row[0] * wx[0] + row[1] * wx[1] + row[2] * wx[2]) * (a * b);
-            }
-        }
+        // One bounds check for the 27 nodes: the last is base + 2 sz + 2 sy + 2.
+        let n = &self.nodes[base..=base + 2 * sz + 2 * sy + 2];
+        let term = |dz: usize, dy: usize| {
+            let o = dz * sz + dy * sy;
+            let row = &n[o..o + 3];
+            (row[0] * wx[0] + row[1] * wx[1] + row[2] * wx[2]) * (wz[dz] * wy[dy])
+        };
+        let acc = ((term(0, 0) + term(0, 1)) + (term(0, 2) + term(1, 0)))
+            + ((term(1, 1) + term(1, 2)) + (term(2, 0) + term(2, 1)))
+            + term(2, 2);
         // A node without a value (NaN u) makes the sum's u NaN, whatever its weight.
         if acc.w.is_nan() {
             return None;

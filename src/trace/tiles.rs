@@ -10,7 +10,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 use super::field::Tile;
-use super::integrate::{advance, Advance, Line, Rk45, Stop, StopBall, ESCAPE_RADIUS};
+use super::integrate::{advance_all, Advance, Line, Rk45, Stop, StopBall, ESCAPE_RADIUS};
 use super::nearest::SurfaceIndex;
 use crate::grid::{copy_overlap, to_usize, Block, BlockStore, GridError, GridSpec};
 use crate::math::{volume, Idx3};
@@ -324,18 +324,15 @@ pub fn trace_tiled(
                 let (lo, hi) = tiling.core(k);
                 let mut done = Vec::new();
                 let mut moved = Vec::new();
-                for mut l in v {
-                    let mut path = Vec::new();
-                    let r = advance(
-                        &mut l,
-                        &tile,
-                        lo,
-                        hi,
-                        rk,
-                        ball,
-                        record_paths.then_some(&mut path),
-                    );
-                    match r {
+                advance_all(
+                    v,
+                    &tile,
+                    lo,
+                    hi,
+                    rk,
+                    ball,
+                    record_paths,
+                    |l, r, path| match r {
                         Advance::Done(stop, end) => done.push((
                             l.id,
                             Outcome {
@@ -347,8 +344,8 @@ pub fn trace_tiled(
                             path,
                         )),
                         Advance::Moved => moved.push((l, path)),
-                    }
-                }
+                    },
+                );
                 (done, moved)
             })
             .collect();
