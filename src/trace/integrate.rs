@@ -638,7 +638,7 @@ fn after(
     own: &mut Own,
     core: &Core<'_>,
     attempt: Result<&[DVec3; 7], NoDirection>,
-    path: Option<&mut Vec<DVec3>>,
+    mut path: Option<&mut Vec<DVec3>>,
 ) -> Option<Leg> {
     let Core {
         tile,
@@ -693,6 +693,11 @@ fn after(
     move_to(line, q);
     line.h = (h * factor).clamp(rk.h_min, rk.h_max);
     own.k1 = k[6];
+    // (The step goes on the path, and a step into the ball ends the line, before the
+    // check for stalling: a stalled line's last step could enter the ball.)
+    if let Some(e) = arrive(from, q, ball, path.as_deref_mut()) {
+        return Some(Leg::Ended(Advance::Done(Stop::Reached, e)));
+    }
     // Zigzagging across a one-voxel sheet with tiny steps is stalling too.
     own.tiny = if h < 1e-3 { own.tiny + 1 } else { 0 };
     if own.tiny >= STUCK_STEPS {
@@ -702,9 +707,6 @@ fn after(
             Err(a) => return Some(Leg::Ended(a)),
         }
         return None;
-    }
-    if let Some(e) = arrive(from, q, ball, path) {
-        return Some(Leg::Ended(Advance::Done(Stop::Reached, e)));
     }
     let leveled = may_start_levels(line, rk) && start_levels(line, tile, rk);
     if !owns(lo, hi, q) {
