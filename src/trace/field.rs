@@ -556,10 +556,11 @@ fn row_directions(r: RowNeighbours<'_>, stored: &[f64], out: &mut [Vec4]) {
             len = 1.0;
         }
         out[i] = if len > 0.0 && len.is_finite() {
+            let inv = 1.0 / len;
             Vec4::new(
-                (g[0] / len) as f32,
-                (g[1] / len) as f32,
-                (g[2] / len) as f32,
+                (g[0] * inv) as f32,
+                (g[1] * inv) as f32,
+                (g[2] * inv) as f32,
                 w,
             )
         } else {
