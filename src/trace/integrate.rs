@@ -292,6 +292,14 @@ impl StopBall {
         // |f + t d|^2 = r^2, smallest t in [0, 1].
         let bq = f.dot(d);
         let c = f.length_squared() - r2;
+        // From outside, a segment that does not head for the center cannot enter (its
+        // smaller root is negative), nor one whose end is still clearly outside and
+        // whose nearest point to the center lies beyond its end (both roots beyond 1).
+        // Most segments, the steps toward the center of every streamline, end here
+        // without the square root; the margin keeps every answer the formula's.
+        if bq >= 0.0 || (-bq >= dd && c + 2.0 * bq + dd > 1e-9 * (dd - bq)) {
+            return None;
+        }
         let disc = bq * bq - dd * c;
         if disc < 0.0 {
             return None;
@@ -1180,6 +1188,66 @@ mod tests {
             "every way of ending should be tried: {ends:?}"
         );
         assert!(on_levels, "some line should be on levels");
+    }
+
+    /// The early exits of [`StopBall::entry`] give the quadratic formula's answer:
+    /// segments of every direction and length around a ball, many ending near its
+    /// sphere, against the formula alone.
+    #[test]
+    fn the_ball_entry_shortcut_is_the_formula() {
+        fn formula(ball: &StopBall, a: DVec3, b: DVec3) -> Option<DVec3> {
+            let r2 = ball.radius * ball.radius;
+            let (d, f) = (b - a, a - ball.center);
+            if f.length_squared() <= r2 {
+                return Some(a);
+            }
+            let dd = d.length_squared();
+            if dd == 0.0 {
+                return None;
+            }
+            let (bq, c) = (f.dot(d), f.length_squared() - r2);
+            let disc = bq * bq - dd * c;
+            if disc < 0.0 {
+                return None;
+            }
+            let t = (-bq - disc.sqrt()) / dd;
+            (0.0..=1.0).contains(&t).then(|| a + t * d)
+        }
+        let ball = StopBall {
+            center: DVec3::new(10.0, -3.0, 7.5),
+            radius: 8.0,
+        };
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let (mut entered, mut missed) = (0, 0);
+        for i in 0..200_000 {
+            let dir = DVec3::new(next(), next(), next()).normalize();
+            let a = ball.center + (8.0 + 12.0 * next().abs()) * dir;
+            let step = DVec3::new(next(), next(), next()) * 3.0;
+            // Every other segment aimed at the sphere, to end near it.
+            let b = if i % 2 == 0 {
+                let end = ball.center + (8.0 + 1e-6 * next()) * dir;
+                a + (end - a) * (1.0 + 1e-7 * next())
+            } else {
+                a + step
+            };
+            let want = formula(&ball, a, b);
+            assert_eq!(ball.entry(a, b), want, "{a} -> {b}");
+            if want.is_some() {
+                entered += 1;
+            } else {
+                missed += 1;
+            }
+        }
+        assert!(
+            entered > 10_000 && missed > 10_000,
+            "{entered} entered, {missed} missed"
+        );
     }
 
     #[test]
