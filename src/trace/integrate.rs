@@ -296,8 +296,10 @@ impl StopBall {
         // smaller root is negative), nor one whose end is still clearly outside and
         // whose nearest point to the center lies beyond its end (both roots beyond 1).
         // Most segments, the steps toward the center of every streamline, end here
-        // without the square root; the margin keeps every answer the formula's.
-        if bq >= 0.0 || (-bq >= dd && c + 2.0 * bq + dd > 1e-9 * (dd - bq)) {
+        // without the square root. "Clearly": the end's value |f + d|^2 - r^2 exceeds
+        // 1e-9 bq^2 / dd, far above the rounding of the formula's t near 1 (about
+        // 1e-16 bq^2 / dd relative), for steps of any length.
+        if bq >= 0.0 || (-bq >= dd && (c + 2.0 * bq + dd) * dd > 1e-9 * bq * bq) {
             return None;
         }
         let disc = bq * bq - dd * c;
@@ -1225,16 +1227,26 @@ mod tests {
             (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
         };
         let (mut entered, mut missed) = (0, 0);
-        for i in 0..200_000 {
+        for i in 0..300_000 {
             let dir = DVec3::new(next(), next(), next()).normalize();
-            let a = ball.center + (8.0 + 12.0 * next().abs()) * dir;
-            let step = DVec3::new(next(), next(), next()) * 3.0;
-            // Every other segment aimed at the sphere, to end near it.
-            let b = if i % 2 == 0 {
-                let end = ball.center + (8.0 + 1e-6 * next()) * dir;
-                a + (end - a) * (1.0 + 1e-7 * next())
-            } else {
-                a + step
+            let mut a = ball.center + (8.0 + 12.0 * next().abs()) * dir;
+            let b = match i % 3 {
+                // Aimed at the sphere, to end within about 2e-6 of it.
+                0 => {
+                    let end = ball.center + (8.0 + 1e-6 * next()) * dir;
+                    a + (end - a) * (1.0 + 1e-7 * next())
+                }
+                // Short steps (1e-9 to 1e-5 voxel), mostly inward, that end 1e-15 to
+                // 1e-9 voxel outside the sphere or inside it.
+                1 => {
+                    let len = 10f64.powf(-9.0 + 4.0 * next().abs());
+                    let gap = 10f64.powf(-15.0 + 6.0 * next().abs()) * next().signum();
+                    let b = ball.center + (8.0 + gap) * dir;
+                    let wobble = DVec3::new(next(), next(), next());
+                    a = b - len * (wobble - 1.5 * dir).normalize();
+                    b
+                }
+                _ => a + DVec3::new(next(), next(), next()) * 3.0,
             };
             let want = formula(&ball, a, b);
             assert_eq!(ball.entry(a, b), want, "{a} -> {b}");
