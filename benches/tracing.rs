@@ -19,7 +19,7 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use glam::DVec3;
 use harmap::grid::Block;
 use harmap::trace::field::{Tile, U_MARGIN};
-use harmap::trace::integrate::{advance, advance_all, Line, Rk45, StopBall};
+use harmap::trace::integrate::{advance, advance_all, Advance, Line, Rk45, Stop, StopBall};
 
 const N: usize = 74;
 const R: f64 = 60.0;
@@ -94,6 +94,21 @@ fn bench(c: &mut Criterion) {
         .map(|(i, q)| Line::new(i as u32, q, &rk))
         .collect();
     let (lo, hi) = ([0i64; 3], [N as i64; 3]);
+    // The set-up must be what it says: 256 lines, all of which reach the stop ball.
+    let mut reached = 0;
+    advance_all(
+        lines.iter().copied(),
+        &tile,
+        lo,
+        hi,
+        &rk,
+        &ball,
+        false,
+        |_, a, _| {
+            reached += usize::from(matches!(a, Advance::Done(Stop::Reached, _)));
+        },
+    );
+    assert_eq!((lines.len(), reached), (256, 256), "lines, reached");
     g.throughput(Throughput::Elements(lines.len() as u64));
     g.bench_function("lines one at a time", |b| {
         b.iter(|| {
