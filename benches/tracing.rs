@@ -94,20 +94,23 @@ fn bench(c: &mut Criterion) {
         .map(|(i, q)| Line::new(i as u32, q, &rk))
         .collect();
     let (lo, hi) = ([0i64; 3], [N as i64; 3]);
+    let two_at_a_time = |done: &mut dyn FnMut(Line, Advance, Vec<DVec3>)| {
+        advance_all(
+            lines.iter().copied(),
+            &tile,
+            lo,
+            hi,
+            &rk,
+            &ball,
+            false,
+            done,
+        );
+    };
     // The set-up must be what it says: 256 lines, all of which reach the stop ball.
     let mut reached = 0;
-    advance_all(
-        lines.iter().copied(),
-        &tile,
-        lo,
-        hi,
-        &rk,
-        &ball,
-        false,
-        |_, a, _| {
-            reached += usize::from(matches!(a, Advance::Done(Stop::Reached, _)));
-        },
-    );
+    two_at_a_time(&mut |_, a, _| {
+        reached += usize::from(matches!(a, Advance::Done(Stop::Reached, _)));
+    });
     assert_eq!((lines.len(), reached), (256, 256), "lines, reached");
     g.throughput(Throughput::Elements(lines.len() as u64));
     g.bench_function("lines one at a time", |b| {
@@ -124,18 +127,7 @@ fn bench(c: &mut Criterion) {
     g.bench_function("lines two at a time", |b| {
         b.iter(|| {
             let mut steps = 0;
-            advance_all(
-                lines.iter().copied(),
-                &tile,
-                lo,
-                hi,
-                &rk,
-                &ball,
-                false,
-                |l, _, _| {
-                    steps += l.steps;
-                },
-            );
+            two_at_a_time(&mut |l, _, _| steps += l.steps);
             steps
         });
     });

@@ -34,6 +34,14 @@ pub fn angles(d: glam::DVec3) -> (f64, f64) {
     (d.x.hypot(d.y).atan2(d.z), d.y.atan2(d.x))
 }
 
+/// [`angles`] in f32, for directions held in f32 (the upwind map's): f32's atan2 takes
+/// half the time of f64's. The components are those of a unit vector, so x^2 + y^2
+/// needs no hypot.
+#[must_use]
+pub fn angles_f32([x, y, z]: [f32; 3]) -> (f32, f32) {
+    ((x * x + y * y).sqrt().atan2(z), y.atan2(x))
+}
+
 /// The unit vector of angles `(theta, psi)`.
 #[must_use]
 pub fn unit(theta: f64, psi: f64) -> glam::DVec3 {
