@@ -20,7 +20,7 @@ pub use flat::FlatStore;
 pub use memory::MemStore;
 pub use mmap::MmapStore;
 pub use spec::GridSpec;
-pub use store::{fill_with, BlockStore, GridError, Scalar};
+pub use store::{fill_with, BlockStore, GridError, MappedBlock, Scalar};
 pub use zarr::{fs_store, read_table, write_table, Compression, ZarrStore};
 
 #[cfg(test)]
@@ -97,6 +97,72 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A raw array's full blocks map to the same values `read_block` gives; edge
+    /// blocks, chunks never written, chunk files of the wrong size and compressed arrays
+    /// are not mapped (read_block reads them, and reports the wrong size).
+    #[test]
+    fn mapped_blocks_are_the_stored_blocks() {
+        let spec = GridSpec {
+            shape: [12, 8, 20],
+            origin: [0.0; 3],
+            spacing: 1.0,
+            chunk: [4, 8, 8],
+            unit: None,
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let value = |[z, y, x]: [u64; 3]| (z * 1000 + y * 50 + x) as f64 * 0.5 - 7.0;
+        let raw = ZarrStore::<f64>::create(
+            dir.path(),
+            "/raw",
+            spec.clone(),
+            f64::NAN,
+            Compression::None,
+            serde_json::Map::new(),
+        )
+        .unwrap();
+        let packed = ZarrStore::<f64>::create(
+            dir.path(),
+            "/packed",
+            spec.clone(),
+            f64::NAN,
+            Compression::Zstd(1),
+            serde_json::Map::new(),
+        )
+        .unwrap();
+        for st in [&raw, &packed] {
+            fill_with(st as &dyn BlockStore<f64>, 2, value).unwrap();
+        }
+        // One chunk left unwritten: it reads as the fill value.
+        let unwritten = [2, 0, 1];
+        std::fs::remove_file(dir.path().join("raw/c/2/0/1")).unwrap();
+        let mut mapped = 0;
+        for b in spec.block_indices() {
+            assert!(packed.map_block(b).is_none(), "compressed block {b:?}");
+            let full = spec.block_shape(b) == spec.chunk;
+            match raw.map_block(b) {
+                Some(m) => {
+                    assert!(full && b != unwritten, "block {b:?} should not map");
+                    assert_eq!(&*m.unwrap(), &raw.read_block(b).unwrap()[..], "{b:?}");
+                    mapped += 1;
+                }
+                None => assert!(!full || b == unwritten, "full block {b:?} should map"),
+            }
+        }
+        // 3 x 1 x 3 blocks; the last along x is an edge block; one was removed.
+        assert_eq!(mapped, 3 * 2 - 1);
+        assert!(raw
+            .read_block(unwritten)
+            .unwrap()
+            .iter()
+            .all(|v| v.is_nan()));
+        // A chunk file cut short is not mapped, and reading it is an error.
+        let cut = dir.path().join("raw/c/0/0/0");
+        let bytes = std::fs::read(&cut).unwrap();
+        std::fs::write(&cut, &bytes[..bytes.len() - 8]).unwrap();
+        assert!(raw.map_block([0, 0, 0]).is_none());
+        assert!(raw.read_block([0, 0, 0]).is_err());
     }
 
     /// `write_block_from` (MemStore's override and the default) writes the block's part

@@ -181,6 +181,16 @@ pub trait BlockStore<T: Scalar>: Send + Sync {
         None
     }
 
+    /// Block `b` as its stored bytes mapped into memory, where the store keeps them as
+    /// they are in memory (uncompressed, little-endian on a little-endian machine, the
+    /// block's own shape): reading it then costs neither a decode nor a copy, and the
+    /// pages come from the page cache instead of being faulted in fresh. None where the
+    /// block must be read with [`BlockStore::read_block`] (compressed, an edge block, a
+    /// chunk never written).
+    fn map_block(&self, _b: Idx3) -> Option<Result<MappedBlock<T>, GridError>> {
+        None
+    }
+
     /// Read block `b` with a halo of `halo` voxels on every side. Voxels of the halo that
     /// fall outside the grid take `outside`.
     fn read_block_halo(&self, b: Idx3, halo: usize, outside: T) -> Result<Block<T>, GridError> {
@@ -259,4 +269,51 @@ pub fn fill_with<T: Scalar>(
         store.write_block(b, &v)
     })?;
     Ok(())
+}
+
+/// A block's stored bytes mapped into memory, read as `[T]` ([`BlockStore::map_block`]).
+pub struct MappedBlock<T> {
+    map: memmap2::Mmap,
+    len: usize,
+    _t: std::marker::PhantomData<T>,
+}
+
+impl<T: Scalar> MappedBlock<T> {
+    /// Map `file`, which must hold exactly `len` values of `T` in the machine's byte
+    /// order; None when its size is not that (the caller reads it the slow way, which
+    /// reports what is wrong).
+    ///
+    /// # Safety
+    /// The file must not be truncated or written while mapped (the run directory's lock
+    /// keeps other harmap processes out; a truncation by anything else would end the
+    /// process with SIGBUS), and `T` must be a plain number type, for which every bit
+    /// pattern is a value (the [`Scalar`] types of this crate are).
+    pub(crate) unsafe fn map(file: &std::fs::File, len: usize) -> std::io::Result<Option<Self>> {
+        if file.metadata()?.len() != (len * T::SIZE) as u64 || len == 0 {
+            return Ok(None);
+        }
+        // SAFETY: as the caller promises; the length was checked just above.
+        let map = unsafe { memmap2::Mmap::map(file)? };
+        if map.len() != len * T::SIZE
+            || !(map.as_ptr() as usize).is_multiple_of(std::mem::align_of::<T>())
+        {
+            return Ok(None);
+        }
+        Ok(Some(Self {
+            map,
+            len,
+            _t: std::marker::PhantomData,
+        }))
+    }
+}
+
+impl<T: Scalar> std::ops::Deref for MappedBlock<T> {
+    type Target = [T];
+
+    fn deref(&self) -> &[T] {
+        // SAFETY: the map holds `len * size_of::<T>()` bytes at an address aligned for
+        // T (both checked in `map`), lives as long as `self`, and every bit pattern is a
+        // T (`map`'s contract).
+        unsafe { std::slice::from_raw_parts(self.map.as_ptr().cast::<T>(), self.len) }
+    }
 }

@@ -14,7 +14,7 @@ use zarrs::array::{Array, ArrayBuilder, CodecOptions};
 use zarrs::filesystem::FilesystemStore;
 
 use super::store::check_block;
-use super::{BlockStore, GridError, GridSpec, Scalar};
+use super::{BlockStore, GridError, GridSpec, MappedBlock, Scalar};
 use crate::math::{volume, Idx3};
 
 /// Compression of a stored array.
@@ -33,6 +33,8 @@ pub struct ZarrStore<T> {
     fill: T,
     path: String,
     options: CodecOptions,
+    /// Chunks are stored as the values' bytes in memory order ([`BlockStore::map_block`]).
+    raw: bool,
 }
 
 fn zerr(path: &str, e: impl std::fmt::Display) -> GridError {
@@ -110,14 +112,51 @@ impl<T: Scalar> ZarrStore<T> {
     fn wrap(spec: GridSpec, array: Array<FilesystemStore>, fill: T, path: &str) -> Self {
         let mut options = CodecOptions::default();
         options.set_concurrent_target(1);
+        let raw = raw_chunks::<T>(&array);
         Self {
             spec,
             array,
             fill,
             path: path.to_owned(),
             options,
+            raw,
         }
     }
+}
+
+/// Whether `array` stores its chunks as the values' bytes in this machine's memory
+/// order: a lone `bytes` codec, little-endian (or no endianness, for single bytes), on
+/// a little-endian machine, without storage transformers, and T one of the plain
+/// number types.
+fn raw_chunks<T: Scalar>(array: &Array<FilesystemStore>) -> bool {
+    let zarrs::metadata::ArrayMetadata::V3(m) = array.metadata() else {
+        return false;
+    };
+    let plain = matches!(
+        T::ZARR_DTYPE,
+        "uint8"
+            | "int8"
+            | "uint16"
+            | "int16"
+            | "uint32"
+            | "int32"
+            | "uint64"
+            | "int64"
+            | "float32"
+            | "float64"
+    );
+    let little =
+        |c: &zarrs::metadata::v3::MetadataV3| match c.configuration().and_then(|c| c.get("endian"))
+        {
+            Some(e) => e.as_str() == Some("little"),
+            None => T::SIZE == 1,
+        };
+    cfg!(target_endian = "little")
+        && plain
+        && m.storage_transformers.is_empty()
+        && m.codecs.len() == 1
+        && m.codecs[0].name() == "bytes"
+        && little(&m.codecs[0])
 }
 
 impl<T: Scalar> BlockStore<T> for ZarrStore<T> {
@@ -145,6 +184,36 @@ impl<T: Scalar> BlockStore<T> for ZarrStore<T> {
             }
         }
         Ok(out)
+    }
+
+    fn map_block(&self, b: Idx3) -> Option<Result<MappedBlock<T>, GridError>> {
+        if !self.raw || self.spec.block_shape(b) != self.spec.chunk {
+            return None;
+        }
+        if let Err(e) = check_block::<T>(&self.spec, b, None) {
+            return Some(Err(e));
+        }
+        let path = self
+            .array
+            .storage()
+            .key_to_fspath(&self.array.chunk_key(&b));
+        let io = |source| GridError::Io {
+            path: path.clone(),
+            source,
+        };
+        let file = match std::fs::File::open(&path) {
+            Ok(f) => f,
+            // Never written: the fill value, which read_block gives.
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return None,
+            Err(e) => return Some(Err(io(e))),
+        };
+        // SAFETY: T is a plain number type (raw_chunks checked it); the run's lock keeps
+        // writers out while the map lives.
+        match unsafe { MappedBlock::map(&file, volume(self.spec.chunk) as usize) } {
+            Ok(Some(m)) => Some(Ok(m)),
+            Ok(None) => None,
+            Err(e) => Some(Err(io(e))),
+        }
     }
 
     fn write_block(&self, b: Idx3, data: &[T]) -> Result<(), GridError> {

@@ -84,13 +84,29 @@ impl Tile {
         shape: [usize; 3],
         mesh: Option<&SurfaceIndex>,
     ) -> Self {
+        Self::from_u_in(u, origin, shape, mesh, Vec::new())
+    }
+
+    /// [`Tile::from_u`], with the nodes written into `buf` (the nodes of a tile no longer
+    /// needed: memory already faulted in, where a fresh allocation costs the kernel a
+    /// page fault and a page of zeros per 4 KiB).
+    #[must_use]
+    pub fn from_u_in(
+        u: &Block<f64>,
+        origin: [i64; 3],
+        shape: [usize; 3],
+        mesh: Option<&SurfaceIndex>,
+        mut buf: Vec<Vec4>,
+    ) -> Self {
         debug_assert!((u.origin, u.shape) == Self::u_box(origin, shape));
         let corr = surface::corrections(u, origin, shape, mesh);
         // u with the boundary nodes' sub-voxel values, one node beyond the tile.
         let cu = &corr.u;
         let [_, sy, sx] = cu.shape;
         let nx = shape[2];
-        let mut nodes = vec![Vec4::ZERO; shape[0] * shape[1] * nx];
+        buf.clear();
+        buf.resize(shape[0] * shape[1] * nx, Vec4::ZERO);
+        let mut nodes = buf;
         for z in 0..shape[0] {
             for y in 0..shape[1] {
                 let o = cu.offset(z + 1, y + 1, 1);
@@ -127,6 +143,12 @@ impl Tile {
             shape,
             nodes,
         }
+    }
+
+    /// The tile's node buffer, for [`Tile::from_u_in`].
+    #[must_use]
+    pub fn into_nodes(self) -> Vec<Vec4> {
+        self.nodes
     }
 
     /// The box of u a tile of `shape` nodes from `origin` is built from: [`U_MARGIN`]
@@ -588,6 +610,34 @@ mod tests {
             }
         }
         u
+    }
+
+    /// A tile built into another tile's node buffer (longer, and holding other values)
+    /// is the tile built afresh, node for node, NaN u included.
+    #[test]
+    fn a_reused_buffer_builds_the_same_tile() {
+        let ball = |x: f64, y: f64, z: f64| {
+            let r = ((x - 6.0).powi(2) + (y - 5.0).powi(2) + (z - 7.0).powi(2)).sqrt();
+            if r < 5.0 {
+                1.0 - r / 5.0
+            } else {
+                f64::NAN
+            }
+        };
+        let old = Tile::from_u(&grid(14, |x, y, z| 0.1 * x + y - z), [0; 3], [14; 3], None);
+        let buf = old.into_nodes();
+        assert!(buf.len() > 12 * 12 * 12);
+        let u = grid(12, ball);
+        let fresh = Tile::from_u(&u, [0; 3], [12; 3], None);
+        let reused = Tile::from_u_in(&u, [0; 3], [12; 3], None, buf);
+        assert_eq!(fresh.nodes.len(), reused.nodes.len());
+        assert!(fresh.nodes.iter().any(|n| n.w.is_nan()));
+        for (a, b) in fresh.nodes.iter().zip(&reused.nodes) {
+            assert_eq!(
+                a.to_array().map(f32::to_bits),
+                b.to_array().map(f32::to_bits)
+            );
+        }
     }
 
     /// A tile of `n` nodes a side from the origin whose node values are `f(x, y, z)`.

@@ -395,13 +395,15 @@ impl Tracer {
         let tiles_total = spec.shape.iter().map(|n| n.div_ceil(edge)).product::<u64>();
         let cache_chunks = ((work / 3) / chunk_bytes).clamp(8, spec.num_blocks().max(8)) as usize;
         let cache_tiles = (((work - cache_chunks as u64 * chunk_bytes) / tile_bytes).max(threads))
-            .min(tiles_total) as usize;
+            .min(tiles_total)
+            .min(Tiling::keep_for(threads as usize) as u64) as usize;
         let tiling = Tiling {
             grid: spec.shape,
             edge,
             halo,
             cache_tiles,
             cache_chunks,
+            wave: Tiling::wave_for(threads as usize),
         };
         Ok(Self {
             u,
