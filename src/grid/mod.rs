@@ -52,10 +52,21 @@ mod tests {
             serde_json::Map::new(),
         )
         .unwrap();
-        for st in [&mem as &dyn BlockStore<u16>, &flat, &mm, &zs] {
+        // Stored raw, its full blocks are mapped (BlockStore::map_block).
+        let raw = ZarrStore::<u16>::create(
+            dir.path(),
+            "/r",
+            spec.clone(),
+            0,
+            Compression::None,
+            serde_json::Map::new(),
+        )
+        .unwrap();
+        for st in [&mem as &dyn BlockStore<u16>, &flat, &mm, &zs, &raw] {
             fill_with(st, 2, |[z, y, x]| value(z, y, x)).unwrap();
         }
-        let stores: [&dyn BlockStore<u16>; 4] = [&mem, &flat, &mm, &zs];
+        assert!(raw.map_block([0, 0, 0]).is_some());
+        let stores: [&dyn BlockStore<u16>; 5] = [&mem, &flat, &mm, &zs, &raw];
         for st in stores {
             for b in spec.block_indices() {
                 let s = spec.block_start(b);

@@ -169,9 +169,14 @@ pub trait BlockStore<T: Scalar>: Send + Sync {
         let spec = self.spec();
         let mut out = Block::filled(origin, shape, outside);
         for b in spec.blocks_overlapping(origin, shape) {
-            let data = self.read_block(b)?;
             let s = spec.block_start(b).map(|c| c as i64);
-            copy_overlap(&data, s, to_usize(spec.block_shape(b)), &mut out);
+            let bs = to_usize(spec.block_shape(b));
+            // A mapped block is read where it overlaps only (a halo takes a few layers of
+            // its neighbours, not their whole chunks).
+            match self.map_block(b) {
+                Some(m) => copy_overlap(&m?, s, bs, &mut out),
+                None => copy_overlap(&self.read_block(b)?, s, bs, &mut out),
+            }
         }
         Ok(out)
     }

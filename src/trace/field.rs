@@ -104,8 +104,15 @@ impl Tile {
         let cu = &corr.u;
         let [_, sy, sx] = cu.shape;
         let nx = shape[2];
-        buf.clear();
-        buf.resize(shape[0] * shape[1] * nx, Vec4::ZERO);
+        // Every node is written below (row by row): a reused buffer keeps its length
+        // without being cleared first.
+        let len = shape[0] * shape[1] * nx;
+        if buf.len() >= len {
+            buf.truncate(len);
+        } else {
+            buf.clear();
+            buf.resize(len, Vec4::ZERO);
+        }
         let mut nodes = buf;
         for z in 0..shape[0] {
             for y in 0..shape[1] {
