@@ -174,6 +174,24 @@ mod tests {
         std::fs::write(&cut, &bytes[..bytes.len() - 8]).unwrap();
         assert!(raw.map_block([0, 0, 0]).is_none());
         assert!(raw.read_block([0, 0, 0]).is_err());
+        // A raw array of another type of the same size is not mapped as f64: decoding
+        // reports the mismatch.
+        let ints = ZarrStore::<u64>::create(
+            dir.path(),
+            "/ints",
+            spec.clone(),
+            0,
+            Compression::None,
+            serde_json::Map::new(),
+        )
+        .unwrap();
+        fill_with(&ints as &dyn BlockStore<u64>, 2, |[z, y, x]| z + y + x + 1).unwrap();
+        assert!(ints.map_block([0, 0, 0]).is_some());
+        let wrong = ZarrStore::<f64>::open(dir.path(), "/ints", spec.clone()).unwrap();
+        assert!(wrong.map_block([0, 0, 0]).is_none());
+        assert!(wrong.read_block([0, 0, 0]).is_err());
+        // A block off the grid is an error, not a panic.
+        assert!(matches!(raw.map_block([9, 9, 9]), Some(Err(_))));
     }
 
     /// `write_block_from` (MemStore's override and the default) writes the block's part

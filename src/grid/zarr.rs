@@ -127,7 +127,8 @@ impl<T: Scalar> ZarrStore<T> {
 /// Whether `array` stores its chunks as the values' bytes in this machine's memory
 /// order: a lone `bytes` codec, little-endian (or no endianness, for single bytes), on
 /// a little-endian machine, without storage transformers, and T one of the plain
-/// number types.
+/// number types and the array's own data type (read as another, the bytes would be
+/// taken for values of the wrong type, where decoding reports the mismatch).
 fn raw_chunks<T: Scalar>(array: &Array<FilesystemStore>) -> bool {
     let zarrs::metadata::ArrayMetadata::V3(m) = array.metadata() else {
         return false;
@@ -153,6 +154,7 @@ fn raw_chunks<T: Scalar>(array: &Array<FilesystemStore>) -> bool {
         };
     cfg!(target_endian = "little")
         && plain
+        && m.data_type.name() == T::ZARR_DTYPE
         && m.storage_transformers.is_empty()
         && m.codecs.len() == 1
         && m.codecs[0].name() == "bytes"
@@ -187,33 +189,30 @@ impl<T: Scalar> BlockStore<T> for ZarrStore<T> {
     }
 
     fn map_block(&self, b: Idx3) -> Option<Result<MappedBlock<T>, GridError>> {
-        if !self.raw || self.spec.block_shape(b) != self.spec.chunk {
+        if !self.raw {
             return None;
         }
         if let Err(e) = check_block::<T>(&self.spec, b, None) {
             return Some(Err(e));
         }
+        if self.spec.block_shape(b) != self.spec.chunk {
+            return None;
+        }
         let path = self
             .array
             .storage()
             .key_to_fspath(&self.array.chunk_key(&b));
-        let io = |source| GridError::Io {
-            path: path.clone(),
-            source,
-        };
-        let file = match std::fs::File::open(&path) {
-            Ok(f) => f,
-            // Never written: the fill value, which read_block gives.
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return None,
-            Err(e) => return Some(Err(io(e))),
-        };
-        // SAFETY: T is a plain number type (raw_chunks checked it); the run's lock keeps
-        // writers out while the map lives.
-        match unsafe { MappedBlock::map(&file, volume(self.spec.chunk) as usize) } {
-            Ok(Some(m)) => Some(Ok(m)),
-            Ok(None) => None,
-            Err(e) => Some(Err(io(e))),
-        }
+        // A chunk never written (the fill value), a file that cannot be opened or mapped
+        // (a filesystem without mmap, too many maps) or of the wrong size: read_block
+        // reads it, or reports what is wrong.
+        let file = std::fs::File::open(&path).ok()?;
+        // SAFETY: T is a plain number type and the array's own (raw_chunks checked it);
+        // the run's lock keeps writers out while the map lives, and harmap writes a
+        // chunk only into a staged image, never over one in use.
+        unsafe { MappedBlock::map(&file, volume(self.spec.chunk) as usize) }
+            .ok()
+            .flatten()
+            .map(Ok)
     }
 
     fn write_block(&self, b: Idx3, data: &[T]) -> Result<(), GridError> {

@@ -254,6 +254,8 @@ pub struct TileStats {
     pub rounds: u64,
     /// Tiles built (a tile evicted and needed again is built again).
     pub tiles_built: u64,
+    /// Different tiles built: `tiles_built` less this is how many builds were repeats.
+    pub tiles_distinct: u64,
     /// u chunks read (decoded, or mapped where stored raw).
     pub chunks_decoded: u64,
     /// Hand-offs of a streamline from one tile to another.
@@ -345,6 +347,7 @@ pub fn trace_tiled(
         pending.entry(tiling.tile_of(l.p)).or_default().push(l);
     }
     let mut stats = TileStats::default();
+    let mut seen = std::collections::HashSet::new();
     progress.start("trace", n as u64);
     while !pending.is_empty() {
         stats.rounds += 1;
@@ -417,6 +420,7 @@ pub fn trace_tiled(
         for (built, r) in visits {
             if let Some((k, t)) = built {
                 stats.tiles_built += 1;
+                stats.tiles_distinct += u64::from(seen.insert(k));
                 tiles.put(k, t);
             }
             results.extend(r);
