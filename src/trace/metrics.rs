@@ -187,11 +187,20 @@ pub fn collisions(
     // the 27 cells around a point's cell.
     let chord = 2.0 * (angle_deg.to_radians() / 2.0).sin();
     let cell = |p: DVec3| -> [i64; 3] { (p / chord).floor().as_i64vec3().to_array() };
-    let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
-    for (i, s) in sphere.iter().enumerate() {
-        if let Some(s) = s {
-            grid.entry(cell(*s)).or_default().push(i);
-        }
+    // Points sorted by cell, and each cell's range of them (one allocation, not one per
+    // cell).
+    let mut sorted: Vec<([i64; 3], usize)> = sphere
+        .iter()
+        .enumerate()
+        .filter_map(|(i, s)| s.map(|s| (cell(s), i)))
+        .collect();
+    sorted.par_sort_unstable();
+    let mut grid: HashMap<[i64; 3], (usize, usize), foldhash::fast::FixedState> =
+        HashMap::with_capacity_and_hasher(sorted.len(), foldhash::fast::FixedState::default());
+    for (k, &(c, _)) in sorted.iter().enumerate() {
+        grid.entry(c)
+            .and_modify(|r| r.1 = k + 1)
+            .or_insert((k, k + 1));
     }
     let count = sphere
         .par_iter()
@@ -202,10 +211,10 @@ pub fn collisions(
             for dz in -1..=1 {
                 for dy in -1..=1 {
                     for dx in -1..=1 {
-                        let Some(v) = grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
+                        let Some(&(a, b)) = grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
                             continue;
                         };
-                        for &j in v {
+                        for &(_, j) in &sorted[a..b] {
                             if j != i
                                 && (sphere[j].expect("in the grid") - *s).length() <= chord
                                 && (positions[j] - positions[i]).length() > far
@@ -230,6 +239,61 @@ pub fn collisions(
 mod tests {
     use super::*;
     use crate::input::starfish::uv_sphere;
+
+    /// The hash grid counts exactly the seeds a brute-force search over all pairs finds:
+    /// random arrivals (a few missing), some planted within the angle of another seed
+    /// from far away (counted), some from nearby (not counted), some just beyond the
+    /// angle (not counted).
+    #[test]
+    fn collisions_are_the_pairs_a_brute_force_search_finds() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (angle, far) = (0.05f64, 5.0);
+        let mut sphere: Vec<Option<DVec3>> = Vec::new();
+        let mut positions: Vec<DVec3> = Vec::new();
+        for i in 0..3000 {
+            let z = 2.0 * next() - 1.0;
+            let a = std::f64::consts::TAU * next();
+            let r = (1.0 - z * z).sqrt();
+            let s = DVec3::new(r * a.cos(), r * a.sin(), z);
+            let p = DVec3::new(next(), next(), next()) * 100.0;
+            sphere.push((i % 97 != 0).then_some(s));
+            positions.push(p);
+            if i % 10 == 0 {
+                // A twin: within (or, every third, just beyond) the angle, from far away
+                // or (every other) from next door.
+                let scale = if i % 30 == 0 { 1.2 } else { 0.6 };
+                let off = s.any_orthonormal_vector() * (angle.to_radians() * scale);
+                let q = if i % 20 == 0 {
+                    p + DVec3::X
+                } else {
+                    p + DVec3::splat(50.0)
+                };
+                sphere.push(Some((s + off).normalize()));
+                positions.push(q);
+            }
+        }
+        let chord = 2.0 * (angle.to_radians() / 2.0).sin();
+        let brute = (0..sphere.len())
+            .filter(|&i| {
+                let Some(s) = sphere[i] else { return false };
+                (0..sphere.len()).any(|j| {
+                    j != i
+                        && sphere[j].is_some_and(|t| (t - s).length() <= chord)
+                        && (positions[j] - positions[i]).length() > far
+                })
+            })
+            .count() as u64;
+        let c = collisions(&positions, &sphere, angle, far);
+        assert_eq!(c.seeds, brute);
+        // The planted far twins within the angle, both sides, and no others by chance.
+        assert!(brute >= 2 * 50, "{brute}");
+    }
 
     #[test]
     fn the_radial_map_of_a_sphere_has_no_flips_and_no_distortion_beyond_the_mesh() {

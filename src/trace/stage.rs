@@ -6,6 +6,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use glam::DVec3;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
 
@@ -153,6 +154,9 @@ fn unflat(v: &[f64]) -> Vec<DVec3> {
 }
 
 /// Write the table as the group `dir_name` (Zarr v3) under the run root.
+/// Writes one column of the seed table.
+type Column<'a> = Box<dyn Fn() -> Result<(), GridError> + Send + Sync + 'a>;
+
 fn write_seeds(
     root: &Path,
     dir_name: &str,
@@ -200,17 +204,27 @@ fn write_seeds(
         serde_json::to_string_pretty(&doc).expect("json").as_bytes(),
     )?;
     let p = |c: &str| format!("/{dir_name}/{c}");
-    write_table(root, &p("position"), 3, &flat(&t.position), f64::NAN)?;
-    write_table(root, &p("theta"), 0, &t.theta, f64::NAN)?;
-    write_table(root, &p("psi"), 0, &t.psi, f64::NAN)?;
-    write_table(root, &p("phi"), 0, &t.phi, f64::NAN)?;
-    write_table(root, &p("stop"), 0, &t.stop, 255u8)?;
-    write_table(root, &p("steps"), 0, &t.steps, 0u32)?;
-    write_table(root, &p("length"), 0, &t.length, f64::NAN)?;
-    write_table(root, &p("end"), 3, &flat(&t.end), f64::NAN)?;
+    // The columns are separate arrays: compressed and written in parallel.
+    let mut columns: Vec<Column<'_>> = vec![
+        Box::new(|| write_table(root, &p("position"), 3, &flat(&t.position), f64::NAN)),
+        Box::new(|| write_table(root, &p("theta"), 0, &t.theta, f64::NAN)),
+        Box::new(|| write_table(root, &p("psi"), 0, &t.psi, f64::NAN)),
+        Box::new(|| write_table(root, &p("phi"), 0, &t.phi, f64::NAN)),
+        Box::new(|| write_table(root, &p("stop"), 0, &t.stop, 255u8)),
+        Box::new(|| write_table(root, &p("steps"), 0, &t.steps, 0u32)),
+        Box::new(|| write_table(root, &p("length"), 0, &t.length, f64::NAN)),
+        Box::new(|| write_table(root, &p("end"), 3, &flat(&t.end), f64::NAN)),
+    ];
     if !t.vertex.is_empty() {
-        write_table(root, &p("vertex"), 0, &t.vertex, u32::MAX)?;
+        columns.push(Box::new(|| {
+            write_table(root, &p("vertex"), 0, &t.vertex, u32::MAX)
+        }));
     }
+    columns
+        .par_iter()
+        .with_max_len(1)
+        .map(|c| c())
+        .collect::<Result<Vec<()>, GridError>>()?;
     Ok(())
 }
 
@@ -562,20 +576,20 @@ fn seed_phi(phi: &dyn BlockStore<f64>, pts: &[DVec3]) -> Result<Vec<f64>, GridEr
             let q = [pts[i].z, pts[i].y, pts[i].x];
             (0..3).any(|a| q[a].floor() as i64 + 1 >= st[a] + sh[a] as i64 && q[a] > q[a].floor())
         });
-        let region = if reaches_next {
-            phi.read_region(st, sh.map(|c| c + 1), f64::NAN)?
-        } else {
-            crate::grid::Block {
-                origin: st,
-                shape: sh,
-                data: phi.read_block(b)?,
-            }
-        };
-        Ok::<_, GridError>(
+        let phi_of = |data: &[f64], shape: [usize; 3]| -> Vec<f64> {
             idx.iter()
-                .map(|&i| 1.0 - trilinear(&region, pts[i]))
-                .collect::<Vec<f64>>(),
-        )
+                .map(|&i| 1.0 - trilinear(data, st, shape, pts[i]))
+                .collect()
+        };
+        Ok::<_, GridError>(if reaches_next {
+            let region = phi.read_region(st, sh.map(|c| c + 1), f64::NAN)?;
+            phi_of(&region.data, region.shape)
+        } else if let Some(mapped) = phi.map_block(b) {
+            // Stored raw: read in place, only the pages the seeds touch.
+            phi_of(&mapped?, sh)
+        } else {
+            phi_of(&phi.read_block(b)?, sh)
+        })
     })?;
     let mut out = vec![f64::NAN; pts.len()];
     for ((_, idx), v) in groups.iter().zip(values) {
@@ -586,7 +600,9 @@ fn seed_phi(phi: &dyn BlockStore<f64>, pts: &[DVec3]) -> Result<Vec<f64>, GridEr
     Ok(out)
 }
 
-fn trilinear(b: &crate::grid::Block<f64>, p: DVec3) -> f64 {
+/// The trilinear interpolant at `p` of the box `data` (C order, `shape` from grid index
+/// `origin`), over the corners that lie in the box and have a value.
+fn trilinear(data: &[f64], origin: [i64; 3], shape: [usize; 3], p: DVec3) -> f64 {
     let f = [p.z.floor(), p.y.floor(), p.x.floor()];
     let t = [p.z - f[0], p.y - f[1], p.x - f[2]];
     let mut acc = 0.0;
@@ -596,11 +612,12 @@ fn trilinear(b: &crate::grid::Block<f64>, p: DVec3) -> f64 {
             for dx in 0..2 {
                 let g = [f[0] as i64 + dz, f[1] as i64 + dy, f[2] as i64 + dx];
                 let inside =
-                    (0..3).all(|a| g[a] >= b.origin[a] && g[a] < b.origin[a] + b.shape[a] as i64);
+                    (0..3).all(|a| g[a] >= origin[a] && g[a] < origin[a] + shape[a] as i64);
                 if !inside {
                     continue;
                 }
-                let v = b.at_global(g);
+                let l = [0, 1, 2].map(|a| (g[a] - origin[a]) as usize);
+                let v = data[(l[0] * shape[1] + l[1]) * shape[2] + l[2]];
                 if v.is_nan() {
                     continue;
                 }
