@@ -8,6 +8,7 @@
 mod block;
 mod budget;
 mod flat;
+mod mapped;
 mod memory;
 mod mmap;
 mod spec;
@@ -17,6 +18,7 @@ mod zarr;
 pub use block::{copy_overlap, to_usize, Block};
 pub use budget::{human, MemBudget, BASE_BYTES};
 pub use flat::FlatStore;
+pub use mapped::MappedStore;
 pub use memory::MemStore;
 pub use mmap::MmapStore;
 pub use spec::GridSpec;
@@ -66,7 +68,11 @@ mod tests {
             fill_with(st, 2, |[z, y, x]| value(z, y, x)).unwrap();
         }
         assert!(raw.map_block([0, 0, 0]).is_some());
-        let stores: [&dyn BlockStore<u16>; 5] = [&mem, &flat, &mm, &zs, &raw];
+        // Its maps kept: read-only, and nothing to keep for a compressed store.
+        let kept = MappedStore::new(&raw).unwrap();
+        assert!(kept.write_block([0, 0, 0], &[0; 256]).is_err());
+        assert!(MappedStore::new(&zs).is_none());
+        let stores: [&dyn BlockStore<u16>; 6] = [&mem, &flat, &mm, &zs, &raw, &kept];
         for st in stores {
             for b in spec.block_indices() {
                 let s = spec.block_start(b);

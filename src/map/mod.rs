@@ -18,7 +18,9 @@ use std::time::Instant;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-use crate::grid::{BlockStore, Compression, GridError, MemBudget, MemStore, Scalar, ZarrStore};
+use crate::grid::{
+    BlockStore, Compression, GridError, MappedStore, MemBudget, MemStore, Scalar, ZarrStore,
+};
 use crate::math::{volume, Idx3};
 use crate::parallel::map_bounded;
 use crate::progress::Progress;
@@ -153,14 +155,23 @@ pub fn map(
             // while its data is at hand.
             let sink = |b: Idx3, lab: &[u8], d: &[Vec<f32>; 3]| angles.write(b, lab, d);
             let s = if cached {
+                // u stored raw is read in place, through maps of its chunks kept for the
+                // map; otherwise, like the labels, it is copied into memory.
+                let mapped = MappedStore::new(&u);
                 let (mu, ml) = (
                     MemStore::new(spec.clone(), f64::NAN),
                     MemStore::new(spec.clone(), 0u8),
                 );
-                copy_blocks(&u, &mu, workers)?;
+                if mapped.is_none() {
+                    copy_blocks(&u, &mu, workers)?;
+                }
                 copy_blocks(&labels, &ml, workers)?;
+                let mu: &dyn BlockStore<f64> = match &mapped {
+                    Some(m) => m,
+                    None => &mu,
+                };
                 upwind::transport(
-                    &mu,
+                    mu,
                     boundary.index(),
                     &ml,
                     &dirs,
