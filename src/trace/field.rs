@@ -258,7 +258,10 @@ impl Tile {
         if n.w.is_nan() || (n.x == 0.0 && n.y == 0.0 && n.z == 0.0) {
             return None;
         }
-        Some(DVec3::new(f64::from(n.x), f64::from(n.y), f64::from(n.z)).normalize())
+        // Stored unit length (to f32 rounding, or a surface normal made unit in f64 and
+        // rounded): not normalized again, which was a square root and a division on the
+        // upwind map's chain of dependent operations per voxel.
+        Some(DVec3::new(f64::from(n.x), f64::from(n.y), f64::from(n.z)))
     }
 
     /// The field's vector at `p`, not unit length: the quadratic B-spline of the node
