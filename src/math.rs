@@ -32,3 +32,18 @@ pub fn floor(x: f64) -> i64 {
     let i = x as i64;
     i - i64::from((i as f64) > x)
 }
+
+/// Small deterministic pseudo-random numbers for tests (xorshift64).
+#[cfg(test)]
+pub(crate) struct TestRng(pub(crate) u64);
+
+#[cfg(test)]
+impl TestRng {
+    /// The next value, in [0, 1). The state must not be zero.
+    pub(crate) fn next_f64(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+}

@@ -5,10 +5,11 @@
 
 use std::sync::{Arc, OnceLock};
 
-use super::{copy_overlap, to_usize, Block, BlockStore, GridError, GridSpec, MappedBlock, Scalar};
+use super::{BlockStore, GridError, GridSpec, MappedBlock, Scalar};
 use crate::math::Idx3;
 
-/// `inner`'s blocks, each mapped once on first use ([`BlockStore::map_block`]) and read
+/// `inner`'s blocks, each mapped once on first use and the map kept
+/// ([`BlockStore::map_block`], which the default `read_region` reads through), and read
 /// through `inner` where it does not map them. Read-only.
 pub struct MappedStore<'a, T: Scalar> {
     inner: &'a dyn BlockStore<T>,
@@ -36,10 +37,7 @@ impl<'a, T: Scalar> MappedStore<'a, T> {
         if let Some(m) = slot.get() {
             return Ok(m.clone());
         }
-        let m = match self.inner.map_block(b) {
-            Some(r) => Some(Arc::new(r?)),
-            None => None,
-        };
+        let m = self.inner.map_block(b).transpose()?;
         Ok(slot.get_or_init(|| m).clone())
     }
 }
@@ -62,22 +60,7 @@ impl<T: Scalar> BlockStore<T> for MappedStore<'_, T> {
         )))
     }
 
-    fn read_region(
-        &self,
-        origin: [i64; 3],
-        shape: [usize; 3],
-        outside: T,
-    ) -> Result<Block<T>, GridError> {
-        let spec = self.spec();
-        let mut out = Block::filled(origin, shape, outside);
-        for b in spec.blocks_overlapping(origin, shape) {
-            let s = spec.block_start(b).map(|c| c as i64);
-            let bs = to_usize(spec.block_shape(b));
-            match self.mapped(b)? {
-                Some(m) => copy_overlap(&m, s, bs, &mut out),
-                None => copy_overlap(&self.inner.read_block(b)?, s, bs, &mut out),
-            }
-        }
-        Ok(out)
+    fn map_block(&self, b: Idx3) -> Option<Result<Arc<MappedBlock<T>>, GridError>> {
+        self.mapped(b).transpose()
     }
 }

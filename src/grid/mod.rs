@@ -161,7 +161,7 @@ mod tests {
             match raw.map_block(b) {
                 Some(m) => {
                     assert!(full && b != unwritten, "block {b:?} should not map");
-                    assert_eq!(&*m.unwrap(), &raw.read_block(b).unwrap()[..], "{b:?}");
+                    assert_eq!(&m.unwrap()[..], &raw.read_block(b).unwrap()[..], "{b:?}");
                     mapped += 1;
                 }
                 None => assert!(!full || b == unwritten, "full block {b:?} should map"),

@@ -8,6 +8,8 @@
 //! **Concurrency rule: no two workers may write the same block at the same time.** Reads
 //! of blocks that nobody writes during the read are always safe.
 
+use std::sync::Arc;
+
 use super::{copy_overlap, to_usize, Block, GridSpec};
 use crate::math::Idx3;
 
@@ -191,8 +193,8 @@ pub trait BlockStore<T: Scalar>: Send + Sync {
     /// block's own shape): reading it then costs neither a decode nor a copy, and the
     /// pages come from the page cache instead of being faulted in fresh. None where the
     /// block must be read with [`BlockStore::read_block`] (compressed, an edge block, a
-    /// chunk never written).
-    fn map_block(&self, _b: Idx3) -> Option<Result<MappedBlock<T>, GridError>> {
+    /// chunk never written). Shared, so a store may keep its maps and hand them out.
+    fn map_block(&self, _b: Idx3) -> Option<Result<Arc<MappedBlock<T>>, GridError>> {
         None
     }
 

@@ -188,7 +188,7 @@ impl<T: Scalar> BlockStore<T> for ZarrStore<T> {
         Ok(out)
     }
 
-    fn map_block(&self, b: Idx3) -> Option<Result<MappedBlock<T>, GridError>> {
+    fn map_block(&self, b: Idx3) -> Option<Result<Arc<MappedBlock<T>>, GridError>> {
         if !self.raw {
             return None;
         }
@@ -212,7 +212,7 @@ impl<T: Scalar> BlockStore<T> for ZarrStore<T> {
         unsafe { MappedBlock::map(&file, volume(self.spec.chunk) as usize) }
             .ok()
             .flatten()
-            .map(Ok)
+            .map(|m| Ok(Arc::new(m)))
     }
 
     fn write_block(&self, b: Idx3, data: &[T]) -> Result<(), GridError> {

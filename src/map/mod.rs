@@ -158,18 +158,15 @@ pub fn map(
                 // u stored raw is read in place, through maps of its chunks kept for the
                 // map; otherwise, like the labels, it is copied into memory.
                 let mapped = MappedStore::new(&u);
-                let (mu, ml) = (
-                    MemStore::new(spec.clone(), f64::NAN),
-                    MemStore::new(spec.clone(), 0u8),
-                );
-                if mapped.is_none() {
-                    copy_blocks(&u, &mu, workers)?;
-                }
-                copy_blocks(&labels, &ml, workers)?;
-                let mu: &dyn BlockStore<f64> = match &mapped {
-                    Some(m) => m,
-                    None => &mu,
+                let held = MemStore::new(spec.clone(), f64::NAN);
+                let mu: &dyn BlockStore<f64> = if let Some(m) = &mapped {
+                    m
+                } else {
+                    copy_blocks(&u, &held, workers)?;
+                    &held
                 };
+                let ml = MemStore::new(spec.clone(), 0u8);
+                copy_blocks(&labels, &ml, workers)?;
                 upwind::transport(
                     mu,
                     boundary.index(),

@@ -1219,13 +1219,8 @@ mod tests {
             center: DVec3::new(10.0, -3.0, 7.5),
             radius: 8.0,
         };
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut rng = crate::math::TestRng(0x2545_f491_4f6c_dd1d);
+        let mut next = || rng.next_f64() * 2.0 - 1.0;
         let (mut entered, mut missed) = (0, 0);
         for i in 0..300_000 {
             let dir = DVec3::new(next(), next(), next()).normalize();

@@ -246,13 +246,8 @@ mod tests {
     /// angle (not counted).
     #[test]
     fn collisions_are_the_pairs_a_brute_force_search_finds() {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::math::TestRng(0x2545_f491_4f6c_dd1d);
+        let mut next = move || rng.next_f64();
         let (angle, far) = (0.05f64, 5.0);
         let mut sphere: Vec<Option<DVec3>> = Vec::new();
         let mut positions: Vec<DVec3> = Vec::new();

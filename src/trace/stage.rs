@@ -153,10 +153,10 @@ fn unflat(v: &[f64]) -> Vec<DVec3> {
         .collect()
 }
 
-/// Write the table as the group `dir_name` (Zarr v3) under the run root.
 /// Writes one column of the seed table.
 type Column<'a> = Box<dyn Fn() -> Result<(), GridError> + Send + Sync + 'a>;
 
+/// Write the table as the group `dir_name` (Zarr v3) under the run root.
 fn write_seeds(
     root: &Path,
     dir_name: &str,

@@ -43,9 +43,9 @@ pub struct Tiling {
     pub halo: i64,
     /// Tiles the cache may hold.
     pub cache_tiles: usize,
-    /// Tiles one round builds and advances at most ([`Tiling::for_threads`]).
+    /// Tiles one round builds and advances at most ([`Tiling::wave_for`]).
     pub wave: usize,
-    /// Decoded phi chunks the cache may hold.
+    /// u chunks (decoded or mapped) the cache may hold.
     pub cache_chunks: usize,
 }
 
@@ -196,7 +196,7 @@ impl<V> Lru<V> {
 /// A chunk of u: decoded, or its stored bytes mapped.
 enum Chunk {
     Decoded(Vec<f64>),
-    Mapped(MappedBlock<f64>),
+    Mapped(Arc<MappedBlock<f64>>),
 }
 
 impl std::ops::Deref for Chunk {
@@ -365,7 +365,7 @@ pub fn trace_tiled(
         batch.sort_unstable();
         // Touch the cached ones first, so making room evicts tiles of no use this round
         // (the batch never exceeds the cache).
-        let mut jobs: Vec<(u64, Option<Arc<Tile>>, Vec<Line>)> = batch
+        let jobs: Vec<(u64, Option<Arc<Tile>>, Vec<Line>)> = batch
             .iter()
             .map(|&k| {
                 let mut v = pending.remove(&k).expect("pending");
@@ -391,7 +391,7 @@ pub fn trace_tiled(
         // One pass: each tile is built if it is not cached, then its streamlines are
         // advanced in slices spread over the threads, so no thread waits for the last
         // build of the round before tracing.
-        let visits: Vec<Visit> = std::mem::take(&mut jobs)
+        let visits: Vec<Visit> = jobs
             .into_par_iter()
             .with_max_len(1)
             .map(|(k, cached, v)| {
