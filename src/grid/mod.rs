@@ -4,9 +4,12 @@
 //! - [`BlockStore`]: read and write blocks, read boxes with a halo; three backends
 //!   ([`ZarrStore`], [`MmapStore`], [`MemStore`]).
 //! - [`MemBudget`]: the `--mem` bound on what a run holds resident.
+//! - [`Decomposition`]: which blocks this process owns ([`Whole`] in one process), and
+//!   the halo-exchange hook that several processes plug into.
 
 mod block;
 mod budget;
+mod decomposition;
 mod flat;
 mod mapped;
 mod memory;
@@ -17,6 +20,7 @@ mod zarr;
 
 pub use block::{copy_overlap, to_usize, Block};
 pub use budget::{human, MemBudget, BASE_BYTES};
+pub use decomposition::{Decomposition, Slabs, Whole};
 pub use flat::FlatStore;
 pub use mapped::MappedStore;
 pub use memory::MemStore;

@@ -1,0 +1,189 @@
+//! Which blocks of a grid this process owns, and the hook that makes the blocks other
+//! processes wrote readable here.
+//!
+//! Every block loop of the stages (voxelize passes, the solve and its polish, the
+//! trace's tile builds, the map) iterates over [`Decomposition::owned`] instead of all
+//! blocks, and calls [`Decomposition::exchange`] after writing its blocks of a field
+//! and before it reads a neighbour's. In one process ([`Whole`]) every block is owned
+//! and the exchange does nothing, so the loops behave exactly as before.
+//!
+//! A decomposition over several processes (MPI ranks) gives each a slab of whole block
+//! layers along z ([`Slabs`]): slabs keep a block's neighbours in x and y on the same
+//! process, so only the two faces of a slab cross processes. Its `exchange` is where
+//! halo messages (or a barrier over a shared filesystem) go.
+//!
+//! Invariants:
+//! - the owned sets of all parts are disjoint and cover the grid's blocks;
+//! - `owned` lists blocks in the grid's block order (z, then y, then x), so per-block
+//!   partial sums gathered from every part and added in that order give the same bytes
+//!   for any number of parts ([`Decomposition::reduce_in_block_order`]).
+
+use crate::grid::{GridError, GridSpec};
+use crate::math::Idx3;
+
+/// Which blocks this process computes and writes, and how it sees the others' blocks.
+pub trait Decomposition: Send + Sync + std::fmt::Debug {
+    /// This process's index among [`parts`](Self::parts), from 0.
+    fn part(&self) -> usize;
+
+    /// How many processes share the grid.
+    fn parts(&self) -> usize;
+
+    /// The range of block layers along z (block index `b[0]`) that `part` owns in a grid
+    /// of `blocks` blocks a side.
+    fn z_layers(&self, part: usize, blocks: Idx3) -> std::ops::Range<u64>;
+
+    /// Whether this process owns block `b` of `spec`'s grid.
+    fn owns(&self, spec: &GridSpec, b: Idx3) -> bool {
+        self.z_layers(self.part(), spec.blocks()).contains(&b[0])
+    }
+
+    /// The blocks of `spec` this process owns, in block order.
+    fn owned(&self, spec: &GridSpec) -> Vec<Idx3> {
+        let nb = spec.blocks();
+        let layers = self.z_layers(self.part(), nb);
+        spec.block_indices()
+            .into_iter()
+            .filter(|b| layers.contains(&b[0]))
+            .collect()
+    }
+
+    /// Make the blocks that other processes wrote of the field named `field` readable
+    /// by this one, at least within `halo` voxels of this process's blocks. Called by
+    /// every process at the same point of a pass. One process: nothing to do.
+    fn exchange(&self, field: &str, halo: u64) -> Result<(), GridError>;
+
+    /// Complete per-block partial sums: `partials[i]` belongs to the `i`-th block of
+    /// `spec` in block order; each process filled the entries of the blocks it owns and
+    /// left the others 0. Afterwards every process holds every entry, and the caller
+    /// adds them in block order, so the total does not depend on the number of parts.
+    fn reduce_in_block_order(&self, spec: &GridSpec, partials: &mut [f64])
+        -> Result<(), GridError>;
+}
+
+/// One process owns every block.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Whole;
+
+impl Decomposition for Whole {
+    fn part(&self) -> usize {
+        0
+    }
+
+    fn parts(&self) -> usize {
+        1
+    }
+
+    fn z_layers(&self, _part: usize, blocks: Idx3) -> std::ops::Range<u64> {
+        0..blocks[0]
+    }
+
+    fn owned(&self, spec: &GridSpec) -> Vec<Idx3> {
+        spec.block_indices()
+    }
+
+    fn exchange(&self, _field: &str, _halo: u64) -> Result<(), GridError> {
+        Ok(())
+    }
+
+    fn reduce_in_block_order(
+        &self,
+        _spec: &GridSpec,
+        _partials: &mut [f64],
+    ) -> Result<(), GridError> {
+        Ok(())
+    }
+}
+
+/// Slabs of whole block layers along z, as even as the layer count allows: part `p` of
+/// `n` owns layers `[p * L / n, (p + 1) * L / n)` of `L`. With more parts than layers
+/// some parts own none.
+///
+/// This type only says who owns what; its `exchange` and `reduce_in_block_order` do
+/// nothing, which is right only when the parts share one address space or one
+/// filesystem and run one after another (the tests do). A message-passing
+/// decomposition wraps it and supplies both.
+#[derive(Clone, Copy, Debug)]
+pub struct Slabs {
+    /// This process's part.
+    pub part: usize,
+    /// The number of parts.
+    pub parts: usize,
+}
+
+impl Decomposition for Slabs {
+    fn part(&self) -> usize {
+        self.part
+    }
+
+    fn parts(&self) -> usize {
+        self.parts
+    }
+
+    fn z_layers(&self, part: usize, blocks: Idx3) -> std::ops::Range<u64> {
+        let n = self.parts.max(1) as u64;
+        let p = part as u64;
+        (p * blocks[0] / n)..((p + 1) * blocks[0] / n)
+    }
+
+    fn exchange(&self, _field: &str, _halo: u64) -> Result<(), GridError> {
+        Ok(())
+    }
+
+    fn reduce_in_block_order(
+        &self,
+        _spec: &GridSpec,
+        _partials: &mut [f64],
+    ) -> Result<(), GridError> {
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(shape: Idx3, chunk: Idx3) -> GridSpec {
+        GridSpec {
+            shape,
+            origin: [0.0; 3],
+            spacing: 1.0,
+            chunk,
+            unit: None,
+        }
+    }
+
+    #[test]
+    fn whole_owns_every_block_in_block_order() {
+        let s = spec([10, 7, 9], [4, 4, 4]);
+        assert_eq!(Whole.owned(&s), s.block_indices());
+        assert!(s.block_indices().iter().all(|&b| Whole.owns(&s, b)));
+    }
+
+    /// For any number of parts, the slabs are disjoint, cover the grid, keep block
+    /// order, and are as even as the layers allow.
+    #[test]
+    fn slabs_partition_the_blocks() {
+        for (shape, chunk) in [
+            ([10, 7, 9], [4, 4, 4]),
+            ([64, 8, 8], [8, 8, 8]),
+            ([3, 3, 3], [1, 3, 3]),
+        ] {
+            let s = spec(shape, chunk);
+            let all = s.block_indices();
+            let layers = s.blocks()[0];
+            for parts in 1..=7 {
+                let mut seen = Vec::new();
+                for part in 0..parts {
+                    let d = Slabs { part, parts };
+                    let own = d.owned(&s);
+                    assert!(own.iter().all(|&b| d.owns(&s, b)));
+                    let n = d.z_layers(part, s.blocks()).count() as u64;
+                    assert!(n == layers / parts as u64 || n == layers / parts as u64 + 1);
+                    seen.extend(own);
+                }
+                assert_eq!(seen, all, "{parts} parts of {shape:?}");
+            }
+        }
+    }
+}
