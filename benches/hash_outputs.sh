@@ -23,7 +23,8 @@ rm -rf "$out"
 mkdir -p "$out"
 cd "$out"
 
-"$bin" -q bench map --n 128 --dir "$out/ball" >/dev/null
+"$bin" -q bench map --n 128 --dir "$out/ball" --keep >/dev/null
+"$bin" -q --progress never trace "$out/ball/bench-solve-128.harmap" >/dev/null
 run_one() { # NAME ARGS...
     local name=$1
     shift
