@@ -116,3 +116,113 @@ impl BlockLoop<'_> {
         self.decomp.exchange(field, halo)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::grid::{fill_with, scratch, Residence, Slabs};
+    use crate::solve::dirichlet::initial_u;
+    use crate::solve::flat::Cache;
+    use crate::solve::jacobi::jacobi_pass;
+    use crate::solve::level::{Change, Level, Measure};
+    use crate::solve::smooth::Smooth;
+    use crate::voxelize::labels::{BOUNDARY, CENTER, EXTERIOR, INTERIOR};
+
+    /// A ball of radius 8 (its shell the boundary, the middle voxel the center) in a
+    /// grid of 3 x 3 x 3 blocks, u started from the fixed values and a wavy guess.
+    fn ball() -> Level {
+        let spec = GridSpec {
+            shape: [22, 19, 21],
+            origin: [0.0; 3],
+            spacing: 1.0,
+            chunk: [8, 8, 8],
+            unit: None,
+        };
+        let label = |[z, y, x]: Idx3| {
+            let d = [z as f64 - 11.0, y as f64 - 9.0, x as f64 - 10.0];
+            let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            match r {
+                r if r < 0.5 => CENTER,
+                r if r < 7.0 => INTERIOR,
+                r if r < 8.0 => BOUNDARY,
+                _ => EXTERIOR,
+            }
+        };
+        let mask = scratch(&spec, 0u8, Residence::Blocks).unwrap();
+        fill_with(&*mask, 1, label).unwrap();
+        let u0 = scratch(&spec, 0.0, Residence::Blocks).unwrap();
+        fill_with(&*u0, 1, |v| match label(v) {
+            INTERIOR => 0.5 + 0.3 * ((v[0] * 7 + v[1] * 3 + v[2]) as f64).sin(),
+            l => initial_u(l, 1e-4),
+        })
+        .unwrap();
+        Level {
+            u: [u0, scratch(&spec, 0.0, Residence::Blocks).unwrap()],
+            spec,
+            mask,
+            f: None,
+            flat: Cache::default(),
+            depth: 0,
+            halo: 6,
+        }
+    }
+
+    fn bits(l: &Level, g: usize) -> Vec<u64> {
+        let shape = l.spec.shape.map(|c| c as usize);
+        let all = l.u[g].read_region([0; 3], shape, 0.0).unwrap();
+        all.data.iter().map(|v| v.to_bits()).collect()
+    }
+
+    /// A pass run as three z slabs one after another writes each block once, from the
+    /// same inputs, so the state is the same bytes as the pass over the whole grid; the
+    /// slabs' counts add up to the whole's, and their residual sums nearly (each part
+    /// sums its own blocks; the gather that would complete them is the decomposition's).
+    #[test]
+    fn a_pass_in_slabs_one_after_another_equals_the_whole_pass() {
+        type Pass = fn(&Level, &BlockLoop<'_>) -> PassStats;
+        let jacobi: Pass = |l, bl| jacobi_pass(l, 0, 1, bl).unwrap();
+        let smooth: Pass = |l, bl| {
+            let pass = Smooth {
+                measure: Measure::Before,
+                change: Change::Src,
+                ..Smooth::new(0, 1, 2)
+            };
+            l.smooth_pass(&pass, bl).unwrap()
+        };
+        for pass in [jacobi, smooth] {
+            let whole = ball();
+            let all = pass(&whole, &BlockLoop::whole(2));
+            assert!(all.count > 1000 && all.res_sq > 0.0 && all.max_change > 0.0);
+            let split = ball();
+            let mut parts = Vec::new();
+            for part in 0..3 {
+                let d = Slabs { part, parts: 3 };
+                let bl = BlockLoop {
+                    workers: 2,
+                    decomp: &d,
+                };
+                parts.push(pass(&split, &bl));
+                // Blocks of the slabs still to come are untouched.
+                for b in split.spec.block_indices() {
+                    let untouched = split.u[1].read_block(b).unwrap().iter().all(|&v| v == 0.0);
+                    assert_eq!(
+                        untouched,
+                        b[0] > part as u64,
+                        "block {b:?} after part {part}"
+                    );
+                }
+            }
+            assert_eq!(bits(&split, 1), bits(&whole, 1));
+            assert_eq!(parts.iter().map(|p| p.count).sum::<u64>(), all.count);
+            let res: f64 = parts.iter().map(|p| p.res_sq).sum();
+            // Sums of the same positive terms in another grouping: rounding only.
+            assert!(
+                (res / all.res_sq - 1.0).abs() < 1e-12,
+                "{res} vs {}",
+                all.res_sq
+            );
+            let max = parts.iter().map(|p| p.max_change).fold(0.0, f64::max);
+            assert_eq!(max.to_bits(), all.max_change.to_bits());
+        }
+    }
+}

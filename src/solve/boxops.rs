@@ -177,6 +177,7 @@ pub fn correction_energy(
 /// node asked for. Writes the coarse box `[c_origin, c_origin + c_shape)` where
 /// `c_mask` (same box) marks unknowns; 0 elsewhere.
 #[must_use]
+#[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
 pub fn restrict(
     d: &[f64],
     d_origin: [i64; 3],
@@ -300,6 +301,7 @@ mod tests {
     use super::*;
 
     #[test]
+    #[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
     fn restriction_of_a_constant_defect_is_four_times_it_and_prolongation_is_exact_on_linear() {
         // Full weighting keeps constants (times the level factor 4).
         let n = 9;
@@ -344,6 +346,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
     fn shrinking_sweeps_on_a_haloed_box_equal_sweeps_on_the_whole_grid() {
         // Two Gauss-Seidel sweeps of a 20^3 grid, and the same two sweeps on a box of it
         // read with a halo of 4 (two layers per sweep), agree on the box interior.

@@ -116,23 +116,23 @@ impl CheckpointDir {
         g: usize,
     ) -> Result<(String, u64), GridError> {
         let path = &self.generation_path(g);
-        let f = fs::File::create(path).map_err(io_err(path))?;
-        let mut w = BufWriter::with_capacity(1 << 20, f);
-        let mut h = Sha256::new();
-        let mut n = 0u64;
+        let file = fs::File::create(path).map_err(io_err(path))?;
+        let mut out = BufWriter::with_capacity(1 << 20, file);
+        let mut sha = Sha256::new();
+        let mut len = 0u64;
         let mut buf = Vec::new();
-        for b in u.spec().block_indices() {
+        for block in u.spec().block_indices() {
             buf.clear();
-            for v in u.read_block(b)? {
+            for v in u.read_block(block)? {
                 buf.extend_from_slice(&v.to_le_bytes());
             }
-            h.update(&buf);
-            w.write_all(&buf).map_err(io_err(path))?;
-            n += buf.len() as u64;
+            sha.update(&buf);
+            out.write_all(&buf).map_err(io_err(path))?;
+            len += buf.len() as u64;
         }
-        let f = w.into_inner().map_err(|e| io_err(path)(e.into_error()))?;
-        f.sync_all().map_err(io_err(path))?;
-        Ok((hex(&h.finalize()), n))
+        let file = out.into_inner().map_err(|e| io_err(path)(e.into_error()))?;
+        file.sync_all().map_err(io_err(path))?;
+        Ok((hex(&sha.finalize()), len))
     }
 
     /// Check the generation `m` names against it (length and sha256).
@@ -166,16 +166,17 @@ impl CheckpointDir {
     /// Read the generation `m` names into `u`.
     pub fn read_generation(&self, u: &dyn BlockStore<f64>, m: &Manifest) -> Result<(), GridError> {
         let path = &self.generation_path(m.generation);
-        let mut r = BufReader::with_capacity(1 << 20, fs::File::open(path).map_err(io_err(path))?);
-        for b in u.spec().block_indices() {
-            let n = crate::math::volume(u.spec().block_shape(b)) as usize;
-            let mut bytes = vec![0u8; n * 8];
-            r.read_exact(&mut bytes).map_err(io_err(path))?;
-            let v: Vec<f64> = bytes
+        let file = fs::File::open(path).map_err(io_err(path))?;
+        let mut input = BufReader::with_capacity(1 << 20, file);
+        for block in u.spec().block_indices() {
+            let len = crate::math::volume(u.spec().block_shape(block)) as usize;
+            let mut bytes = vec![0u8; len * 8];
+            input.read_exact(&mut bytes).map_err(io_err(path))?;
+            let values: Vec<f64> = bytes
                 .chunks_exact(8)
                 .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
                 .collect();
-            u.write_block(b, &v)?;
+            u.write_block(block, &values)?;
         }
         Ok(())
     }

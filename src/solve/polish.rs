@@ -195,41 +195,13 @@ pub fn polish(
         ));
         report.passes += 1;
         let before = sweeps.clone();
-        let mut pass = Pass {
-            unconverged: vec![false; regions.len()],
-            moved: vec![0; regions.len()],
-            last: Vec::new(),
+        let first = report.passes == 1;
+        let mut state = State {
+            regions: &mut regions,
+            sweeps: &mut sweeps,
+            active: &active,
         };
-        for phase in 0..8u64 {
-            let todo: Vec<Idx3> = owned
-                .iter()
-                .copied()
-                .filter(|&b| {
-                    active[lin(b)] && sweeps[lin(b)] < opts.max_sweeps && phase_of(b) == phase
-                })
-                .collect();
-            let first = report.passes == 1;
-            let visits = crate::parallel::map_bounded(&todo, workers, |&b| {
-                let region = regions[lin(b)].as_ref().expect("active blocks hold region");
-                let limit = SWEEPS_PER_VISIT.min(opts.max_sweeps - sweeps[lin(b)]);
-                relax_block(u, b, region, opts, limit, first)
-            })?;
-            for (&b, v) in todo.iter().zip(visits) {
-                let k = lin(b);
-                sweeps[k] += v.sweeps;
-                pass.last.push((b, v.last));
-                pass.unconverged[k] = !v.converged;
-                if let Some(r) = regions[k].as_mut() {
-                    r.negative = v.negative;
-                }
-                pass.moved[k] = v
-                    .face_moved
-                    .iter()
-                    .enumerate()
-                    .fold(0u8, |m, (f, &moved)| m | u8::from(moved) << f);
-            }
-            blocks.exchange("u", 1)?;
-        }
+        let pass = state.visit(u, opts, &owned, workers, first, blocks)?;
         report.last_change = blocks
             .gather(&spec, pass.last.iter().copied())?
             .into_iter()
@@ -258,6 +230,72 @@ pub fn polish(
 /// one phase share no face.
 fn phase_of(b: Idx3) -> u64 {
     (b[0] % 2) * 4 + (b[1] % 2) * 2 + b[2] % 2
+}
+
+/// The blocks of this process between passes.
+struct State<'a> {
+    /// Per block: its region (None where there is none, or another process owns it).
+    regions: &'a mut [Option<Region>],
+    /// Per block: sweeps done.
+    sweeps: &'a mut [u64],
+    /// Per block: to visit in this pass.
+    active: &'a [bool],
+}
+
+impl State<'_> {
+    /// One pass: the active blocks of `owned` that have sweeps left, in eight colour
+    /// phases (blocks of a phase in parallel), exchanging `u` after each phase.
+    fn visit(
+        &mut self,
+        u: &dyn BlockStore<f64>,
+        opts: &PolishOptions,
+        owned: &[Idx3],
+        workers: usize,
+        first: bool,
+        blocks: &BlockLoop<'_>,
+    ) -> Result<Pass, GridError> {
+        let spec = u.spec();
+        let lin = |b: Idx3| spec.block_linear(b) as usize;
+        let n = self.regions.len();
+        let mut pass = Pass {
+            unconverged: vec![false; n],
+            moved: vec![0; n],
+            last: Vec::new(),
+        };
+        for phase in 0..8u64 {
+            let todo: Vec<Idx3> = owned
+                .iter()
+                .copied()
+                .filter(|&b| {
+                    self.active[lin(b)]
+                        && self.sweeps[lin(b)] < opts.max_sweeps
+                        && phase_of(b) == phase
+                })
+                .collect();
+            let (regions, sweeps) = (&*self.regions, &*self.sweeps);
+            let visits = crate::parallel::map_bounded(&todo, workers, |&b| {
+                let region = regions[lin(b)].as_ref().expect("active blocks hold region");
+                let limit = SWEEPS_PER_VISIT.min(opts.max_sweeps - sweeps[lin(b)]);
+                relax_block(u, b, region, opts, limit, first)
+            })?;
+            for (&b, v) in todo.iter().zip(visits) {
+                let k = lin(b);
+                self.sweeps[k] += v.sweeps;
+                pass.last.push((b, v.last));
+                pass.unconverged[k] = !v.converged;
+                if let Some(r) = self.regions[k].as_mut() {
+                    r.negative = v.negative;
+                }
+                pass.moved[k] = v
+                    .face_moved
+                    .iter()
+                    .enumerate()
+                    .fold(0u8, |m, (f, &moved)| m | u8::from(moved) << f);
+            }
+            blocks.exchange("u", 1)?;
+        }
+        Ok(pass)
+    }
 }
 
 /// What the visits of one pass left, per block of this process.
@@ -356,6 +394,7 @@ fn find_regions(
 /// Relax the region voxels of block `b` against its one-voxel halo until a sweep moves
 /// no value by more than `rel_change` of itself (or `limit` sweeps), and write the
 /// block back. On the `first` visit, the region's values start from 0.
+#[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
 fn relax_block(
     u: &dyn BlockStore<f64>,
     b: Idx3,

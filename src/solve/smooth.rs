@@ -143,8 +143,6 @@ impl Level {
         Ok(st)
     }
 
-    /// A smoothing pass over every block, reduced in block order.
-
     /// A smoothing pass over the owned blocks, reduced in block order; then the fields
     /// it wrote are exchanged.
     pub fn smooth_pass(

@@ -104,7 +104,6 @@ pub fn solve_with(
         polish,
     };
     // The scratch stores go before phi and u are renamed into place.
-    drop(it);
     drop(setup.h);
     run.commit_image("u")?;
     run.commit_image("phi")?;

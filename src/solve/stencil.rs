@@ -13,12 +13,14 @@ pub fn optimal_omega(n: f64) -> f64 {
 /// to `nb`, added in the order x-, x+, y-, y+, z-, z+. Every kernel computes through
 /// this and [`full_weighting`], so they give the same bytes.
 #[inline]
+#[must_use]
 pub fn defect_of(f: f64, nb: f64, u: f64) -> f64 {
     f + nb - 6.0 * u
 }
 
 /// The defect at offset `i` of a C-order array with strides `sy`, `sz`.
 #[inline]
+#[must_use]
 pub fn defect_at(u: &[f64], f: Option<&[f64]>, i: usize, sy: usize, sz: usize) -> f64 {
     let nb = u[i - 1] + u[i + 1] + u[i - sy] + u[i + sy] + u[i - sz] + u[i + sz];
     defect_of(f.map_or(0.0, |f| f[i]), nb, u[i])
@@ -28,6 +30,7 @@ pub fn defect_at(u: &[f64], f: Option<&[f64]>, i: usize, sy: usize, sz: usize) -
 /// array `d` (strides `sy`, `sz`): `4 * sum_d w(d) D(c + d)` with `w` = 1/8 at the
 /// center, 1/16 on faces, 1/32 on edges, 1/64 at corners, summed z, y, x.
 #[inline]
+#[must_use]
 pub fn full_weighting(d: &[f64], c: usize, sy: usize, sz: usize) -> f64 {
     const W: [f64; 3] = [0.5, 1.0, 0.5];
     let mut s = 0.0;
@@ -45,6 +48,7 @@ pub fn full_weighting(d: &[f64], c: usize, sy: usize, sz: usize) -> f64 {
 
 /// The term of `c . A c` at an unknown with correction `c` and neighbour sum `nb`.
 #[inline]
+#[must_use]
 pub fn energy_term(c: f64, nb: f64) -> f64 {
     c * (6.0 * c - nb)
 }

@@ -11,6 +11,7 @@ use crate::math::Idx3;
 
 /// Restrict the defect of a smoothed fine box into the coarse block `b` of `c` (the
 /// coarse block under the fine block `b`), and zero the coarse correction there.
+#[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
 pub(super) fn restrict_block(view: &BoxView<'_>, c: &Level, b: Idx3) -> Result<(), GridError> {
     let cs = c.spec.block_start(b).map(|v| v as i64);
     let csh = c.spec.block_shape(b).map(|v| v as usize);

@@ -118,6 +118,7 @@ pub(super) fn interpolate_xy(
 /// Parallel over slabs of fine planes; a slab interpolates each coarse plane it needs
 /// in x and y once (a fine plane takes one or two of them, its neighbours share them).
 #[allow(clippy::too_many_arguments)]
+#[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
 pub(super) fn prolong_add(
     fine: [usize; 3],
     u: &mut [f64],
@@ -162,6 +163,7 @@ impl Flat<'_> {
     /// keeps `c` (0 off the unknowns) on three planes and interpolates each coarse
     /// plane once.
     #[must_use]
+    #[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
     pub fn correction_energy(&self, coarse: &Flat<'_>) -> f64 {
         let spec = self.spec;
         let [nz, ny, nx] = dims(spec);

@@ -13,6 +13,7 @@ use crate::solve::stencil::defect_of;
 /// the even slabs, then the odd ones. A slab reads the planes next to it, which belong
 /// to slabs of the other round (or are the grid's first and last planes), so a round
 /// borrows its own slabs mutably and the others shared: no copies and no locks.
+#[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
 pub(super) fn half_sweep(
     u: &mut [f64],
     runs: &Runs,
@@ -172,6 +173,7 @@ pub(super) fn sweeps(
 /// every state: with `fixed`, `u` holds them already and only the unknowns are
 /// written; otherwise whole planes are copied.
 #[allow(clippy::too_many_arguments)]
+#[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
 pub(super) fn relax_from(
     u: &mut [f64],
     src: &[f64],

@@ -12,6 +12,7 @@ use crate::solve::stencil::defect_at;
 /// and count of the residual `defect / 6` (with `measure`), summed as the block passes
 /// sum them: per block, plane by plane, each plane in y, x order; the blocks in block
 /// order. Parallel over slabs of planes, which keep one sum per block column and plane.
+#[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
 pub(super) fn block_stats(
     spec: &GridSpec,
     u: &[f64],
