@@ -1,11 +1,12 @@
 //! In-memory backend as one array: the whole grid in C order. Block access copies rows;
 //! kernels that work on the whole grid (the in-memory levels of the multigrid solver)
-//! take the array itself and so skip the copies that block-by-block passes need.
+//! take the array itself through the [`Contiguous`] capability and so skip the copies
+//! that block-by-block passes need.
 
 use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
 
 use super::store::check_block;
-use super::{copy_overlap, to_usize, Block, BlockStore, GridError, GridSpec, Scalar};
+use super::{copy_overlap, to_usize, Block, BlockStore, Contiguous, GridError, GridSpec, Scalar};
 use crate::math::{volume, Idx3};
 
 /// A grid held in memory as one C-order array.
@@ -89,7 +90,17 @@ impl<T: Scalar> BlockStore<T> for FlatStore<T> {
         Ok(out)
     }
 
-    fn as_flat(&self) -> Option<&FlatStore<T>> {
+    fn contiguous(&self) -> Option<&dyn Contiguous<T>> {
         Some(self)
+    }
+}
+
+impl<T: Scalar> Contiguous<T> for FlatStore<T> {
+    fn array(&self) -> RwLockReadGuard<'_, Vec<T>> {
+        self.read()
+    }
+
+    fn array_mut(&self) -> RwLockWriteGuard<'_, Vec<T>> {
+        self.write()
     }
 }

@@ -1,8 +1,13 @@
 //! Chunked grid storage behind one block-access trait.
 //!
 //! - [`GridSpec`]: shape, placement in the world, block shape.
-//! - [`BlockStore`]: read and write blocks, read boxes with a halo; three backends
-//!   ([`ZarrStore`], [`MmapStore`], [`MemStore`]).
+//! - [`BlockStore`]: read and write blocks, read boxes with a halo; backends
+//!   [`ZarrStore`] (kept arrays), [`MmapStore`] (scratch files), [`MemStore`] and
+//!   [`FlatStore`] (memory); capabilities a backend may offer: [`Contiguous`] (the
+//!   whole grid as one array) and [`BlockStore::map_block`] (blocks read in place).
+//! - [`scratch`]: the one factory of scratch grids, in memory or in a file
+//!   ([`Residence`]).
+//! - [`Scalar`]: the element types, plain numbers ([`bytemuck::Pod`]), sealed.
 //! - [`MemBudget`]: the `--mem` bound on what a run holds resident.
 //! - [`Decomposition`]: which blocks this process owns ([`Whole`] in one process), and
 //!   the halo-exchange hook that several processes plug into.
@@ -14,6 +19,7 @@ mod flat;
 mod mapped;
 mod memory;
 mod mmap;
+mod scratch;
 mod spec;
 mod store;
 mod zarr;
@@ -25,8 +31,9 @@ pub use flat::FlatStore;
 pub use mapped::MappedStore;
 pub use memory::MemStore;
 pub use mmap::MmapStore;
+pub use scratch::{copy_blocks, scratch, Residence};
 pub use spec::GridSpec;
-pub use store::{fill_with, BlockStore, GridError, MappedBlock, Scalar};
+pub use store::{fill_with, BlockStore, Contiguous, GridError, MappedBlock, Scalar};
 pub use zarr::{fs_store, read_table, write_table, Compression, ZarrStore};
 
 #[cfg(test)]

@@ -13,16 +13,11 @@ use std::sync::Arc;
 use super::{copy_overlap, to_usize, Block, GridSpec};
 use crate::math::Idx3;
 
-/// Element types a grid may hold.
+/// Element types a grid may hold: plain numbers ([`bytemuck::Pod`]: every bit pattern
+/// is a value, no padding), so stored bytes may be read as values without a check. The
+/// trait is sealed: the backends and the Zarr data type names cover exactly these types.
 pub trait Scalar:
-    Copy
-    + Send
-    + Sync
-    + PartialEq
-    + std::fmt::Debug
-    + zarrs::array::ElementOwned
-    + Into<zarrs::array::builder::ArrayBuilderFillValue>
-    + 'static
+    bytemuck::Pod + Send + Sync + PartialEq + std::fmt::Debug + sealed::Sealed + 'static
 {
     /// The Zarr v3 data type name.
     const ZARR_DTYPE: &'static str;
@@ -36,8 +31,14 @@ pub trait Scalar:
     fn from_f64(v: f64) -> Self;
 }
 
+mod sealed {
+    /// Only this crate implements [`super::Scalar`].
+    pub trait Sealed {}
+}
+
 macro_rules! scalar {
     ($t:ty, $name:literal) => {
+        impl sealed::Sealed for $t {}
         impl Scalar for $t {
             const ZARR_DTYPE: &'static str = $name;
             fn write_le(self, out: &mut [u8]) {
@@ -117,6 +118,18 @@ pub enum GridError {
     },
 }
 
+/// A grid held as one C-order array `[z, y, x]` in memory: kernels over the whole grid
+/// take the array itself, skipping the copies of block-by-block access
+/// ([`BlockStore::contiguous`]). The guards follow the reader-writer rule: many readers
+/// or one writer; a kernel that holds one store's write guard must not ask for it
+/// again.
+pub trait Contiguous<T>: Send + Sync {
+    /// The array, for reading.
+    fn array(&self) -> std::sync::RwLockReadGuard<'_, Vec<T>>;
+    /// The array, for writing (its length must stay the grid's voxel count).
+    fn array_mut(&self) -> std::sync::RwLockWriteGuard<'_, Vec<T>>;
+}
+
 /// Called by [`BlockStore::write_block_from`] with each row's index in the block, the
 /// values it held and the values written over them.
 pub type RowInspector<'a, T> = &'a mut dyn FnMut(usize, &[T], &[T]);
@@ -183,8 +196,10 @@ pub trait BlockStore<T: Scalar>: Send + Sync {
         Ok(out)
     }
 
-    /// The store as one in-memory array, when it is one.
-    fn as_flat(&self) -> Option<&super::FlatStore<T>> {
+    /// Capability: the whole grid as one C-order array in memory ([`Contiguous`]), for
+    /// kernels that work on the whole grid in place. None (the default) for stores that
+    /// hold it any other way; callers then go block by block.
+    fn contiguous(&self) -> Option<&dyn Contiguous<T>> {
         None
     }
 
@@ -281,34 +296,30 @@ pub fn fill_with<T: Scalar>(
 /// A block's stored bytes mapped into memory, read as `[T]` ([`BlockStore::map_block`]).
 pub struct MappedBlock<T> {
     map: memmap2::Mmap,
-    len: usize,
     _t: std::marker::PhantomData<T>,
 }
 
 impl<T: Scalar> MappedBlock<T> {
     /// Map `file`, which must hold exactly `len` values of `T` in the machine's byte
-    /// order; None when its size is not that (the caller reads it the slow way, which
-    /// reports what is wrong).
+    /// order; None when its size is not that, or the map is not aligned for `T` (the
+    /// caller reads it the slow way, which reports what is wrong).
     ///
     /// # Safety
     /// The file must not be truncated or written while mapped (the run directory's lock
     /// keeps other harmap processes out; a truncation by anything else would end the
-    /// process with SIGBUS), and `T` must be a plain number type, for which every bit
-    /// pattern is a value (the [`Scalar`] types of this crate are).
+    /// process with SIGBUS). Any bytes are valid values of a [`Scalar`] (it is
+    /// [`bytemuck::Pod`]), so the contents need no check.
     pub(crate) unsafe fn map(file: &std::fs::File, len: usize) -> std::io::Result<Option<Self>> {
         if file.metadata()?.len() != (len * T::SIZE) as u64 || len == 0 {
             return Ok(None);
         }
         // SAFETY: as the caller promises; the length was checked just above.
         let map = unsafe { memmap2::Mmap::map(file)? };
-        if map.len() != len * T::SIZE
-            || !(map.as_ptr() as usize).is_multiple_of(std::mem::align_of::<T>())
-        {
+        if map.len() != len * T::SIZE || bytemuck::try_cast_slice::<u8, T>(&map[..]).is_err() {
             return Ok(None);
         }
         Ok(Some(Self {
             map,
-            len,
             _t: std::marker::PhantomData,
         }))
     }
@@ -318,9 +329,7 @@ impl<T: Scalar> std::ops::Deref for MappedBlock<T> {
     type Target = [T];
 
     fn deref(&self) -> &[T] {
-        // SAFETY: the map holds `len * size_of::<T>()` bytes at an address aligned for
-        // T (both checked in `map`), lives as long as `self`, and every bit pattern is a
-        // T (`map`'s contract).
-        unsafe { std::slice::from_raw_parts(self.map.as_ptr().cast::<T>(), self.len) }
+        // Size and alignment were checked in `map`, and T is Pod.
+        bytemuck::cast_slice(&self.map[..])
     }
 }

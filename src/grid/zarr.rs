@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use zarrs::array::codec::ZstdCodec;
-use zarrs::array::{Array, ArrayBuilder, CodecOptions};
+use zarrs::array::{Array, ArrayBuilder, ArrayBytes, CodecOptions, FillValue};
 use zarrs::filesystem::FilesystemStore;
 
 use super::store::check_block;
@@ -35,6 +35,8 @@ pub struct ZarrStore<T> {
     options: CodecOptions,
     /// Chunks are stored as the values' bytes in memory order ([`BlockStore::map_block`]).
     raw: bool,
+    /// The array's data type is T's ([`Scalar::ZARR_DTYPE`]); reads and writes check it.
+    typed: bool,
 }
 
 fn zerr(path: &str, e: impl std::fmt::Display) -> GridError {
@@ -70,7 +72,7 @@ impl<T: Scalar> ZarrStore<T> {
             spec.shape.to_vec(),
             spec.chunk.to_vec(),
             T::ZARR_DTYPE,
-            fill,
+            fill_value(fill),
         );
         builder
             .dimension_names(Some(["z", "y", "x"]))
@@ -113,6 +115,7 @@ impl<T: Scalar> ZarrStore<T> {
         let mut options = CodecOptions::default();
         options.set_concurrent_target(1);
         let raw = raw_chunks::<T>(&array);
+        let typed = dtype_name(&array).as_deref() == Some(T::ZARR_DTYPE);
         Self {
             spec,
             array,
@@ -120,8 +123,67 @@ impl<T: Scalar> ZarrStore<T> {
             path: path.to_owned(),
             options,
             raw,
+            typed,
         }
     }
+
+    /// An error unless the array holds values of T.
+    fn check_type(&self) -> Result<(), GridError> {
+        if self.typed {
+            return Ok(());
+        }
+        Err(zerr(
+            &self.path,
+            format!(
+                "data type is {}, not {}",
+                dtype_name(&self.array).unwrap_or_else(|| "unknown".into()),
+                T::ZARR_DTYPE
+            ),
+        ))
+    }
+}
+
+/// The fill value `v` as zarrs takes it: the value's bytes (zarrs writes the metadata
+/// from them as it does from a typed value, e.g. "NaN").
+fn fill_value<T: Scalar>(v: T) -> FillValue {
+    FillValue::new(bytemuck::bytes_of(&v).to_vec())
+}
+
+/// The Zarr v3 data type name of `array`.
+fn dtype_name(array: &Array<FilesystemStore>) -> Option<String> {
+    match array.metadata() {
+        zarrs::metadata::ArrayMetadata::V3(m) => Some(m.data_type.name().to_owned()),
+        zarrs::metadata::ArrayMetadata::V2(_) => None,
+    }
+}
+
+/// Chunk `idx` of `array` decoded into values of T (whose data type the caller checked).
+/// Through bytes, so T needs no zarrs trait: the element types stay plain ([`Scalar`]).
+fn retrieve_values<T: Scalar>(
+    array: &Array<FilesystemStore>,
+    idx: &[u64],
+    options: &CodecOptions,
+    path: &str,
+) -> Result<Vec<T>, GridError> {
+    let bytes: ArrayBytes<'static> = array
+        .retrieve_chunk_opt(idx, options)
+        .map_err(|e| zerr(path, e))?;
+    let raw = bytes.into_fixed().map_err(|e| zerr(path, e))?;
+    if raw.len() % T::SIZE != 0 {
+        return Err(zerr(path, "chunk bytes are not whole values"));
+    }
+    Ok(bytemuck::pod_collect_to_vec(&raw))
+}
+
+/// Store `data` (values of T, the array's data type) as chunk `idx` of `array`.
+fn store_values<T: Scalar>(
+    array: &Array<FilesystemStore>,
+    idx: &[u64],
+    data: &[T],
+    options: &CodecOptions,
+) -> Result<(), zarrs::array::ArrayError> {
+    let bytes = ArrayBytes::new_flen(bytemuck::cast_slice::<T, u8>(data));
+    array.store_chunk_opt(idx, bytes, options)
 }
 
 /// Whether `array` stores its chunks as the values' bytes in this machine's memory
@@ -168,10 +230,8 @@ impl<T: Scalar> BlockStore<T> for ZarrStore<T> {
 
     fn read_block(&self, b: Idx3) -> Result<Vec<T>, GridError> {
         check_block::<T>(&self.spec, b, None)?;
-        let full: Vec<T> = self
-            .array
-            .retrieve_chunk_opt(&b, &self.options)
-            .map_err(|e| zerr(&self.path, e))?;
+        self.check_type()?;
+        let full: Vec<T> = retrieve_values(&self.array, &b, &self.options, &self.path)?;
         let shape = self.spec.block_shape(b);
         if shape == self.spec.chunk {
             return Ok(full);
@@ -217,9 +277,10 @@ impl<T: Scalar> BlockStore<T> for ZarrStore<T> {
 
     fn write_block(&self, b: Idx3, data: &[T]) -> Result<(), GridError> {
         check_block(&self.spec, b, Some(data))?;
+        self.check_type()?;
         let shape = self.spec.block_shape(b);
         let res = if shape == self.spec.chunk {
-            self.array.store_chunk_opt(&b, data, &self.options)
+            store_values(&self.array, &b, data, &self.options)
         } else {
             // zarrs stores whole chunks: pad edge blocks with the fill value.
             let c = self.spec.chunk.map(|c| c as usize);
@@ -231,7 +292,7 @@ impl<T: Scalar> BlockStore<T> for ZarrStore<T> {
                     full[o..o + s[2]].copy_from_slice(&data[(z * s[1] + y) * s[2]..][..s[2]]);
                 }
             }
-            self.array.store_chunk_opt(&b, &full, &self.options)
+            store_values(&self.array, &b, &full, &self.options)
         };
         res.map_err(|e| zerr(&self.path, e))
     }
@@ -267,7 +328,7 @@ pub fn write_table<T: Scalar>(
         )
     };
     let store = fs_store(root)?;
-    let mut builder = ArrayBuilder::new(shape, chunk, T::ZARR_DTYPE, fill);
+    let mut builder = ArrayBuilder::new(shape, chunk, T::ZARR_DTYPE, fill_value(fill));
     builder
         .dimension_names(Some(names))
         .bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(3, false))]);
@@ -282,7 +343,7 @@ pub fn write_table<T: Scalar>(
         } else {
             vec![c as u64, 0]
         };
-        array.store_chunk(&idx, &full).map_err(|e| zerr(path, e))?;
+        store_values(&array, &idx, &full, &CodecOptions::default()).map_err(|e| zerr(path, e))?;
     }
     Ok(())
 }
@@ -291,6 +352,9 @@ pub fn write_table<T: Scalar>(
 pub fn read_table<T: Scalar>(root: &Path, path: &str) -> Result<(Vec<u64>, Vec<T>), GridError> {
     let store = fs_store(root)?;
     let array = Array::open(store, path).map_err(|e| zerr(path, e))?;
+    if dtype_name(&array).as_deref() != Some(T::ZARR_DTYPE) {
+        return Err(zerr(path, format!("data type is not {}", T::ZARR_DTYPE)));
+    }
     let shape = array.shape().to_vec();
     if shape.is_empty() || shape.len() > 2 {
         return Err(zerr(
@@ -312,7 +376,7 @@ pub fn read_table<T: Scalar>(root: &Path, path: &str) -> Result<(Vec<u64>, Vec<T
         } else {
             vec![c, 0]
         };
-        let v: Vec<T> = array.retrieve_chunk(&idx).map_err(|e| zerr(path, e))?;
+        let v: Vec<T> = retrieve_values(&array, &idx, &CodecOptions::default(), path)?;
         let take = ((rows - c * chunk_rows).min(chunk_rows) * width) as usize;
         out.extend_from_slice(&v[..take]);
         c += 1;

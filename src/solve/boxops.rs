@@ -1,5 +1,5 @@
-//! Kernels of the 7-point operator on a box read with a halo, for the multigrid and
-//! Jacobi drivers: red-black sweeps over shrinking sub-boxes (several sweeps per read),
+//! Kernels of the 7-point operator on a box read with a halo (the point kernels are in
+//! [`super::stencil`]), for the block passes of multigrid, SOR and Jacobi: red-black sweeps over shrinking sub-boxes (several sweeps per read),
 //! residuals, full-weighting restriction and trilinear prolongation.
 //!
 //! The equation at an unknown `i` of a level is `6 u_i - sum of its 6 neighbours = f_i`
@@ -12,42 +12,8 @@
 //! Colors are by global index parity (`z + y + x` even is red), so a sweep gives the same
 //! values whatever the blocking.
 
+use super::stencil::{defect_at, defect_of, energy_term, full_weighting};
 use crate::voxelize::labels::INTERIOR;
-
-/// The defect `f + nb - 6 u` of a voxel whose value is `u` and whose six neighbours sum
-/// to `nb`, added in the order x-, x+, y-, y+, z-, z+. Every kernel (boxes here, whole
-/// arrays in [`super::flat`]) computes through this and [`full_weighting`], so they
-/// give the same bytes.
-#[inline]
-pub(super) fn defect_of(f: f64, nb: f64, u: f64) -> f64 {
-    f + nb - 6.0 * u
-}
-
-/// The defect at offset `i` of a C-order array with strides `sy`, `sz`.
-#[inline]
-pub(super) fn defect_at(u: &[f64], f: Option<&[f64]>, i: usize, sy: usize, sz: usize) -> f64 {
-    let nb = u[i - 1] + u[i + 1] + u[i - sy] + u[i + sy] + u[i - sz] + u[i + sz];
-    defect_of(f.map_or(0.0, |f| f[i]), nb, u[i])
-}
-
-/// Full weighting with the coarse-level scaling at the fine offset `c` of the defect
-/// array `d` (strides `sy`, `sz`): `4 * sum_d w(d) D(c + d)` with `w` = 1/8 at the
-/// center, 1/16 on faces, 1/32 on edges, 1/64 at corners, summed z, y, x.
-#[inline]
-pub(super) fn full_weighting(d: &[f64], c: usize, sy: usize, sz: usize) -> f64 {
-    const W: [f64; 3] = [0.5, 1.0, 0.5];
-    let mut s = 0.0;
-    for (dz, wz) in W.iter().enumerate() {
-        for (dy, wy) in W.iter().enumerate() {
-            for (dx, wx) in W.iter().enumerate() {
-                let i = c + dz * sz + dy * sy + dx - sz - sy - 1;
-                s += wz * wy * wx * d[i];
-            }
-        }
-    }
-    // Weights above sum to 8; full weighting's sum to 1; times 4.
-    s * 0.5
-}
 
 /// A box of a level held in memory: `u`, the mask and (coarse levels) `f`, all of
 /// `shape`, whose first voxel sits at global index `origin`.
@@ -167,12 +133,6 @@ impl BoxView<'_> {
     }
 }
 
-/// The term of `c . A c` at an unknown with correction `c` and neighbour sum `nb`.
-#[inline]
-pub(super) fn energy_term(c: f64, nb: f64) -> f64 {
-    c * (6.0 * c - nb)
-}
-
 /// `c . A c` over the unknowns of the local sub-box `[lo, hi)` of a box of `shape`
 /// (which must leave a voxel on every side of it), for a correction `c` on that box
 /// taken as 0 off the unknowns; `A c = 6 c - sum of neighbours`. Summed plane by plane
@@ -217,6 +177,7 @@ pub fn correction_energy(
 /// node asked for. Writes the coarse box `[c_origin, c_origin + c_shape)` where
 /// `c_mask` (same box) marks unknowns; 0 elsewhere.
 #[must_use]
+#[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
 pub fn restrict(
     d: &[f64],
     d_origin: [i64; 3],
@@ -340,6 +301,7 @@ mod tests {
     use super::*;
 
     #[test]
+    #[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
     fn restriction_of_a_constant_defect_is_four_times_it_and_prolongation_is_exact_on_linear() {
         // Full weighting keeps constants (times the level factor 4).
         let n = 9;
@@ -384,6 +346,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
     fn shrinking_sweeps_on_a_haloed_box_equal_sweeps_on_the_whole_grid() {
         // Two Gauss-Seidel sweeps of a 20^3 grid, and the same two sweeps on a box of it
         // read with a halo of 4 (two layers per sweep), agree on the box interior.

@@ -6,6 +6,9 @@
 //! (values of 1e-22 are common on cactus10k at resolution 128). The linear system is the
 //! same; only the stored quantity changes.
 
+use super::blocks::BlockLoop;
+use super::level::Level;
+use crate::grid::GridError;
 use crate::voxelize::labels::{BOUNDARY, CENTER, EXTERIOR, INTERIOR, LAYER1};
 
 /// What phi is at a voxel.
@@ -42,6 +45,15 @@ pub fn initial_u(label: u8, eps: f64) -> f64 {
         Node::Fixed(v) => 1.0 - v,
         Node::Outside => f64::NAN,
     }
+}
+
+/// Set every voxel of generation 0 of the finest level to its starting value.
+pub fn initialize(l: &Level, eps: f64, blocks: &BlockLoop<'_>) -> Result<(), GridError> {
+    blocks.each(&l.spec, |b| {
+        let m = l.mask.read_block(b)?;
+        l.u[0].write_block(b, &m.iter().map(|&v| initial_u(v, eps)).collect::<Vec<_>>())
+    })?;
+    blocks.exchange(&l.field("u0"), l.halo)
 }
 
 #[cfg(test)]

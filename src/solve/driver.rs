@@ -10,12 +10,13 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::boxops::BoxView;
-use super::multigrid::{Hierarchy, Level, PassStats};
+use super::jacobi::jacobi_pass;
+use super::level::PassStats;
+use super::multigrid::Hierarchy;
 use super::stencil::optimal_omega;
-use crate::grid::{BlockStore, GridError, Scalar};
-use crate::parallel::map_bounded;
-use crate::voxelize::labels::INTERIOR;
+/// Moved to [`crate::grid::copy_blocks`]; kept here for the callers of the old path.
+pub use crate::grid::copy_blocks;
+use crate::grid::GridError;
 
 /// The iteration.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -98,7 +99,7 @@ pub enum Decision {
 /// One method over the finest level's stores.
 pub struct Iteration<'a> {
     /// The hierarchy (only the finest level for SOR and Jacobi).
-    pub h: &'a Hierarchy,
+    pub h: &'a Hierarchy<'a>,
     /// Which iteration.
     pub method: Method,
     /// Over-relaxation factor of SOR.
@@ -109,7 +110,7 @@ impl Iteration<'_> {
     /// An iteration, given the method; `omega`: the SOR factor (`None`: the optimum for
     /// the grid's longest axis).
     #[must_use]
-    pub fn new(h: &Hierarchy, method: Method, omega: Option<f64>) -> Iteration<'_> {
+    pub fn new<'a>(h: &'a Hierarchy<'a>, method: Method, omega: Option<f64>) -> Iteration<'a> {
         let n = h.levels[0].spec.shape.iter().copied().max().unwrap_or(2) as f64;
         Iteration {
             h,
@@ -154,7 +155,7 @@ impl Iteration<'_> {
         mut decide: impl FnMut(&History) -> Result<Decision, GridError>,
     ) -> Result<StopReason, GridError> {
         let fine = &self.h.levels[0];
-        let w = self.h.workers;
+        let w = &self.h.blocks;
         // Multigrid: the residual of the current state as the last cycle measured it,
         // and whether this cycle's pre-smoothing is done.
         let mut measured: Option<PassStats> = None;
@@ -208,73 +209,4 @@ impl Iteration<'_> {
             hist.max_change.push(change);
         }
     }
-}
-
-/// One Jacobi iteration from `u[src]` into `u[dst]`, measuring the residual of the
-/// source and the largest change (which is the largest |residual|).
-fn jacobi_pass(l: &Level, src: usize, dst: usize, workers: usize) -> Result<PassStats, GridError> {
-    let spec = &l.spec;
-    let parts = map_bounded(&spec.block_indices(), workers, |&b| {
-        let mut u = l.u[src].read_block_halo(b, 1, 0.0)?;
-        let mask = l.mask.read_block_halo(b, 1, 0)?;
-        let shape = u.shape;
-        let view = BoxView {
-            u: &mut u.data,
-            mask: &mask.data,
-            f: None,
-            shape,
-            origin: u.origin,
-        };
-        let lo = [1; 3];
-        let hi = shape.map(|c| c - 1);
-        let d = view.defects(lo, hi);
-        let inner = mask.crop(lo, spec.block_shape(b).map(|c| c as usize));
-        let old = u.crop(lo, spec.block_shape(b).map(|c| c as usize));
-        let mut st = PassStats::default();
-        let new: Vec<f64> = old
-            .iter()
-            .zip(&d)
-            .zip(&inner)
-            .map(|((&o, &d), &m)| {
-                if m == INTERIOR {
-                    let r = d / 6.0;
-                    st.res_sq += r * r;
-                    st.count += 1;
-                    st.max_change = st.max_change.max(r.abs());
-                    o + r
-                } else {
-                    o
-                }
-            })
-            .collect();
-        l.u[dst].write_block(b, &new)?;
-        Ok(st)
-    })?;
-    Ok(PassStats::reduce(parts))
-}
-
-/// Set every voxel of generation 0 of the finest level to its starting value.
-pub fn initialize(l: &Level, eps: f64, workers: usize) -> Result<(), GridError> {
-    map_bounded(&l.spec.block_indices(), workers, |&b| {
-        let m = l.mask.read_block(b)?;
-        l.u[0].write_block(
-            b,
-            &m.iter()
-                .map(|&v| super::dirichlet::initial_u(v, eps))
-                .collect::<Vec<_>>(),
-        )
-    })?;
-    Ok(())
-}
-
-/// Copy every block of `src` into `dst` (same grid and blocks).
-pub fn copy_blocks<T: Scalar>(
-    src: &dyn BlockStore<T>,
-    dst: &dyn BlockStore<T>,
-    workers: usize,
-) -> Result<(), GridError> {
-    map_bounded(&src.spec().block_indices(), workers, |&b| {
-        dst.write_block(b, &src.read_block(b)?)
-    })?;
-    Ok(())
 }

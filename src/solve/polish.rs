@@ -29,7 +29,8 @@
 //! reads has changed. Memory: one bit per voxel of the blocks that hold the region,
 //! plus a haloed block per worker.
 
-use crate::grid::{BlockStore, GridError};
+use super::blocks::BlockLoop;
+use crate::grid::{BlockStore, GridError, GridSpec};
 use crate::math::Idx3;
 use crate::progress::Progress;
 use crate::voxelize::labels::INTERIOR;
@@ -122,18 +123,241 @@ struct Visit {
 /// Relax the small values of `u` (unknowns where `mask` is INTERIOR) in place, block by
 /// block. `bytes` is the memory the polish may hold at once (it decides how many blocks
 /// are relaxed at a time, not the result). `stop` is polled between passes.
+///
+/// This process relaxes the blocks `blocks` owns, exchanges `u` (halo 1) after each
+/// colour phase, and learns which of its blocks to visit next from the faces that
+/// moved in its neighbours' visits, gathered over all processes.
 pub fn polish(
     u: &dyn BlockStore<f64>,
     mask: &dyn BlockStore<u8>,
     opts: &PolishOptions,
     bytes: u64,
-    workers: usize,
+    blocks: &BlockLoop<'_>,
     stop: &(dyn Fn() -> bool + Sync),
     progress: &dyn Progress,
 ) -> Result<PolishReport, GridError> {
     let spec = u.spec().clone();
-    let blocks = spec.block_indices();
-    let scan = crate::parallel::map_bounded(&blocks, workers, |&b| {
+    let lin = |b: Idx3| spec.block_linear(b) as usize;
+    let (mut regions, found) = find_regions(u, mask, opts, blocks)?;
+    let mut report = PolishReport {
+        voxels: found.voxels,
+        negative: [found.negative, found.negative],
+        blocks: found.has_region.iter().filter(|&&r| r).count() as u64,
+        ..PolishReport::default()
+    };
+    if found.voxels == 0 {
+        return Ok(report);
+    }
+    // A worker holds a haloed block and the lists of its region voxels.
+    let held: u64 = regions
+        .iter()
+        .flatten()
+        .map(|r| r.bits.len() as u64 * 8)
+        .sum();
+    let per_worker =
+        (crate::math::volume(spec.chunk.map(|c| c + 2)) * 8) + crate::math::volume(spec.chunk) * 12;
+    let workers = blocks
+        .workers
+        .min((bytes.saturating_sub(held) / per_worker.max(1)) as usize)
+        .max(1);
+    let owned = blocks.decomp.owned(&spec);
+    let region_negative = |regions: &[Option<Region>]| -> Result<u64, GridError> {
+        let own = owned
+            .iter()
+            .filter_map(|&b| Some((b, regions[lin(b)].as_ref()?.negative as f64)));
+        Ok(blocks.gather(&spec, own)?.iter().map(|&v| v as u64).sum())
+    };
+    let region_negative_before = region_negative(&regions)?;
+    let mut active = found.has_region.clone();
+    let mut sweeps = vec![0u64; regions.len()];
+    loop {
+        let flags = owned
+            .iter()
+            .map(|&b| (b, f64::from(u8::from(active[lin(b)]))));
+        let to_visit = blocks
+            .gather(&spec, flags)?
+            .iter()
+            .filter(|&&a| a > 0.0)
+            .count();
+        if to_visit == 0 {
+            break;
+        }
+        if stop() {
+            report.interrupted = true;
+            break;
+        }
+        progress.message(&format!(
+            "solve: polishing {} tiny values  pass {}, {to_visit} of {} blocks to visit, largest change {:.1e}",
+            found.voxels,
+            report.passes + 1,
+            report.blocks,
+            report.last_change
+        ));
+        report.passes += 1;
+        let before = sweeps.clone();
+        let first = report.passes == 1;
+        let mut state = State {
+            regions: &mut regions,
+            sweeps: &mut sweeps,
+            active: &active,
+        };
+        let pass = state.visit(u, opts, &owned, workers, first, blocks)?;
+        report.last_change = blocks
+            .gather(&spec, pass.last.iter().copied())?
+            .into_iter()
+            .fold(0.0f64, f64::max);
+        let moved = owned.iter().map(|&b| (b, f64::from(pass.moved[lin(b)])));
+        let moved = blocks.gather(&spec, moved)?;
+        for &b in &owned {
+            let k = lin(b);
+            active[k] = pass.unconverged[k] && sweeps[k] < opts.max_sweeps
+                || found.has_region[k]
+                    && woken(&spec, b, &moved, &before, &sweeps, opts.max_sweeps);
+        }
+    }
+    report.sweeps = blocks
+        .gather(&spec, owned.iter().map(|&b| (b, sweeps[lin(b)] as f64)))?
+        .into_iter()
+        .map(|s| s as u64)
+        .max()
+        .unwrap_or(0);
+    let region_negative_after = region_negative(&regions)?;
+    report.negative[1] = found.negative - region_negative_before + region_negative_after;
+    Ok(report)
+}
+
+/// The colour phase of block `b`: the parity of its index along each axis. Blocks of
+/// one phase share no face.
+fn phase_of(b: Idx3) -> u64 {
+    (b[0] % 2) * 4 + (b[1] % 2) * 2 + b[2] % 2
+}
+
+/// The blocks of this process between passes.
+struct State<'a> {
+    /// Per block: its region (None where there is none, or another process owns it).
+    regions: &'a mut [Option<Region>],
+    /// Per block: sweeps done.
+    sweeps: &'a mut [u64],
+    /// Per block: to visit in this pass.
+    active: &'a [bool],
+}
+
+impl State<'_> {
+    /// One pass: the active blocks of `owned` that have sweeps left, in eight colour
+    /// phases (blocks of a phase in parallel), exchanging `u` after each phase.
+    fn visit(
+        &mut self,
+        u: &dyn BlockStore<f64>,
+        opts: &PolishOptions,
+        owned: &[Idx3],
+        workers: usize,
+        first: bool,
+        blocks: &BlockLoop<'_>,
+    ) -> Result<Pass, GridError> {
+        let spec = u.spec();
+        let lin = |b: Idx3| spec.block_linear(b) as usize;
+        let n = self.regions.len();
+        let mut pass = Pass {
+            unconverged: vec![false; n],
+            moved: vec![0; n],
+            last: Vec::new(),
+        };
+        for phase in 0..8u64 {
+            let todo: Vec<Idx3> = owned
+                .iter()
+                .copied()
+                .filter(|&b| {
+                    self.active[lin(b)]
+                        && self.sweeps[lin(b)] < opts.max_sweeps
+                        && phase_of(b) == phase
+                })
+                .collect();
+            let (regions, sweeps) = (&*self.regions, &*self.sweeps);
+            let visits = crate::parallel::map_bounded(&todo, workers, |&b| {
+                let region = regions[lin(b)].as_ref().expect("active blocks hold region");
+                let limit = SWEEPS_PER_VISIT.min(opts.max_sweeps - sweeps[lin(b)]);
+                relax_block(u, b, region, opts, limit, first)
+            })?;
+            for (&b, v) in todo.iter().zip(visits) {
+                let k = lin(b);
+                self.sweeps[k] += v.sweeps;
+                pass.last.push((b, v.last));
+                pass.unconverged[k] = !v.converged;
+                if let Some(r) = self.regions[k].as_mut() {
+                    r.negative = v.negative;
+                }
+                pass.moved[k] = v
+                    .face_moved
+                    .iter()
+                    .enumerate()
+                    .fold(0u8, |m, (f, &moved)| m | u8::from(moved) << f);
+            }
+            blocks.exchange("u", 1)?;
+        }
+        Ok(pass)
+    }
+}
+
+/// What the visits of one pass left, per block of this process.
+struct Pass {
+    /// Visited and not converged.
+    unconverged: Vec<bool>,
+    /// Faces whose values moved, a bit per face (-z, +z, -y, +y, -x, +x).
+    moved: Vec<u8>,
+    /// The last relative change of each visit.
+    last: Vec<(Idx3, f64)>,
+}
+
+/// Whether block `b` must be visited again because a neighbour's face toward it moved
+/// in this pass (`moved`: the face bits of every block), and `b` then still had sweeps
+/// left: a neighbour visited in a phase before `b`'s saw `b` before its own visit of
+/// this pass (`before`), one visited after saw it after (`now`).
+fn woken(spec: &GridSpec, b: Idx3, moved: &[f64], before: &[u64], now: &[u64], max: u64) -> bool {
+    let nb = spec.blocks();
+    let k = spec.block_linear(b) as usize;
+    (0..3).any(|a| {
+        [false, true].into_iter().any(|up| {
+            // The neighbour on the `up` side of b along a, and its face toward b.
+            if (up && b[a] + 1 == nb[a]) || (!up && b[a] == 0) {
+                return false;
+            }
+            let mut n = b;
+            n[a] = if up { b[a] + 1 } else { b[a] - 1 };
+            let face = 2 * a + usize::from(!up);
+            let bits = moved[spec.block_linear(n) as usize] as u8;
+            if bits >> face & 1 == 0 {
+                return false;
+            }
+            let seen = if phase_of(b) < phase_of(n) {
+                now[k]
+            } else {
+                before[k]
+            };
+            seen < max
+        })
+    })
+}
+
+/// What the scan before the passes found, over all blocks.
+struct Found {
+    /// Unknowns in the region.
+    voxels: u64,
+    /// Unknowns with u < 0.
+    negative: u64,
+    /// Per block: whether it holds region voxels.
+    has_region: Vec<bool>,
+}
+
+/// The region of each block this process owns (None elsewhere), and what the scan
+/// found over all blocks.
+fn find_regions(
+    u: &dyn BlockStore<f64>,
+    mask: &dyn BlockStore<u8>,
+    opts: &PolishOptions,
+    blocks: &BlockLoop<'_>,
+) -> Result<(Vec<Option<Region>>, Found), GridError> {
+    let spec = u.spec();
+    let scan = blocks.map(spec, |b| {
         let (uv, mv) = (u.read_block(b)?, mask.read_block(b)?);
         let mut bits = vec![0u64; uv.len().div_ceil(64)];
         let (mut count, mut negative, mut region_negative) = (0u64, 0u64, 0u64);
@@ -151,101 +375,26 @@ pub fn polish(
             bits,
             negative: region_negative,
         });
-        Ok::<_, GridError>((region, count, negative))
+        Ok((region, count, negative))
     })?;
-    let negative_before: u64 = scan.iter().map(|s| s.2).sum();
-    let voxels: u64 = scan.iter().map(|s| s.1).sum();
-    let mut regions: Vec<Option<Region>> = scan.into_iter().map(|s| s.0).collect();
-    let mut report = PolishReport {
-        voxels,
-        negative: [negative_before, negative_before],
-        blocks: regions.iter().filter(|r| r.is_some()).count() as u64,
-        ..PolishReport::default()
+    let counts = blocks.gather(spec, scan.iter().map(|(b, s)| (*b, s.1 as f64)))?;
+    let negatives = blocks.gather(spec, scan.iter().map(|(b, s)| (*b, s.2 as f64)))?;
+    let mut regions: Vec<Option<Region>> = counts.iter().map(|_| None).collect();
+    for (b, s) in scan {
+        regions[spec.block_linear(b) as usize] = s.0;
+    }
+    let found = Found {
+        voxels: counts.iter().map(|&c| c as u64).sum(),
+        negative: negatives.iter().map(|&c| c as u64).sum(),
+        has_region: counts.iter().map(|&c| c > 0.0).collect(),
     };
-    if voxels == 0 {
-        return Ok(report);
-    }
-    // A worker holds a haloed block and the lists of its region voxels.
-    let held: u64 = regions
-        .iter()
-        .flatten()
-        .map(|r| r.bits.len() as u64 * 8)
-        .sum();
-    let per_worker =
-        (crate::math::volume(spec.chunk.map(|c| c + 2)) * 8) + crate::math::volume(spec.chunk) * 12;
-    let workers = workers
-        .min((bytes.saturating_sub(held) / per_worker.max(1)) as usize)
-        .max(1);
-
-    let region_negative_before: u64 = regions.iter().flatten().map(|r| r.negative).sum();
-    let nb = spec.blocks();
-    let lin = |b: Idx3| spec.block_linear(b) as usize;
-    let mut active: Vec<bool> = regions.iter().map(Option::is_some).collect();
-    let mut sweeps = vec![0u64; regions.len()];
-    let per_visit = SWEEPS_PER_VISIT;
-    while active.iter().any(|&a| a) {
-        if stop() {
-            report.interrupted = true;
-            break;
-        }
-        progress.message(&format!(
-            "solve: polishing {voxels} tiny values  pass {}, {} of {} blocks to visit, largest change {:.1e}",
-            report.passes + 1,
-            active.iter().filter(|&&a| a).count(),
-            report.blocks,
-            report.last_change
-        ));
-        report.passes += 1;
-        let mut next = vec![false; regions.len()];
-        let mut last = 0.0f64;
-        for phase in 0..8u64 {
-            let todo: Vec<Idx3> = blocks
-                .iter()
-                .copied()
-                .filter(|&b| {
-                    active[lin(b)]
-                        && sweeps[lin(b)] < opts.max_sweeps
-                        && (b[0] % 2) * 4 + (b[1] % 2) * 2 + b[2] % 2 == phase
-                })
-                .collect();
-            let first = report.passes == 1;
-            let visits = crate::parallel::map_bounded(&todo, workers, |&b| {
-                let region = regions[lin(b)].as_ref().expect("active blocks hold region");
-                let limit = per_visit.min(opts.max_sweeps - sweeps[lin(b)]);
-                relax_block(u, b, region, opts, limit, first)
-            })?;
-            for (&b, v) in todo.iter().zip(visits) {
-                let k = lin(b);
-                sweeps[k] += v.sweeps;
-                last = last.max(v.last);
-                next[k] |= !v.converged && sweeps[k] < opts.max_sweeps;
-                if let Some(r) = regions[k].as_mut() {
-                    r.negative = v.negative;
-                }
-                for (f, &moved) in v.face_moved.iter().enumerate() {
-                    let (a, up) = (f / 2, f % 2 == 1);
-                    if !moved || (!up && b[a] == 0) || (up && b[a] + 1 == nb[a]) {
-                        continue;
-                    }
-                    let mut n = b;
-                    n[a] = if up { b[a] + 1 } else { b[a] - 1 };
-                    let kn = lin(n);
-                    next[kn] |= regions[kn].is_some() && sweeps[kn] < opts.max_sweeps;
-                }
-            }
-        }
-        report.last_change = last;
-        active = next;
-    }
-    report.sweeps = sweeps.iter().copied().max().unwrap_or(0);
-    let region_negative_after: u64 = regions.iter().flatten().map(|r| r.negative).sum();
-    report.negative[1] = negative_before - region_negative_before + region_negative_after;
-    Ok(report)
+    Ok((regions, found))
 }
 
 /// Relax the region voxels of block `b` against its one-voxel halo until a sweep moves
 /// no value by more than `rel_change` of itself (or `limit` sweeps), and write the
 /// block back. On the `first` visit, the region's values start from 0.
+#[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
 fn relax_block(
     u: &dyn BlockStore<f64>,
     b: Idx3,
@@ -395,7 +544,7 @@ mod tests {
             mask,
             &opts,
             bytes,
-            workers,
+            &BlockLoop::whole(workers),
             &|| false,
             &crate::progress::Silent,
         )

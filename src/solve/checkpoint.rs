@@ -1,0 +1,276 @@
+//! Checkpoints of the iteration: the state u and the loop's history, written so that a
+//! resumed solve gives the same bytes as an uninterrupted one.
+//!
+//! Format (version [`CHECKPOINT_FORMAT`]), in `RUN/solve/`: two generation files
+//! `g0.bin`, `g1.bin` — every block of u in block order, true extents, f64
+//! little-endian — and `manifest.json` naming the generation that holds the newest
+//! state, with its length and sha256, the identity of the labels and options it was
+//! made for, and the [`History`]; the manifest before it is kept as
+//! `manifest.prev.json`.
+//!
+//! A checkpoint writes the generation the current manifest does not name, fsyncs it,
+//! then commits a new manifest atomically (temporary file, fsync, rename). A torn or
+//! damaged generation fails its checksum on resume, and the previous manifest is used.
+//!
+//! The files are written through [`CheckpointDir`], whose few methods are the only
+//! place that touches the filesystem for checkpoints.
+
+use std::fs;
+use std::io::{BufReader, BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+use sha2::{Digest, Sha256};
+
+use super::driver::History;
+use super::{SolveError, SolveOptions};
+use crate::grid::{BlockStore, GridError};
+use crate::progress::Progress;
+use crate::run::{write_atomic, RunDir};
+
+/// Version of the checkpoint files (2: the state is u = 1 - phi).
+pub const CHECKPOINT_FORMAT: u32 = 2;
+
+/// What `manifest.json` records.
+#[derive(Debug, Serialize, Deserialize)]
+pub struct Manifest {
+    format: u32,
+    identity: String,
+    /// The generation file (0 or 1) that holds the state.
+    pub generation: usize,
+    sha256: String,
+    bytes: u64,
+    /// The iteration's history at the state.
+    pub history: History,
+}
+
+/// The identity a checkpoint must match: the labels' provenance and the options that
+/// change the iterates.
+pub fn identity(run: &RunDir, opts: &SolveOptions) -> Result<String, crate::Error> {
+    let a = run.attrs()?;
+    let v = json!({
+        "grid": a.get("grid"),
+        "input": a.get("input"),
+        "center": a.get("center"),
+        "voxelize": a.pointer("/stages/voxelize/options"),
+        "solve": opts,
+    });
+    Ok(hex(&Sha256::digest(v.to_string().as_bytes())))
+}
+
+fn hex(b: &[u8]) -> String {
+    use std::fmt::Write as _;
+    b.iter().fold(String::new(), |mut s, x| {
+        let _ = write!(s, "{x:02x}");
+        s
+    })
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> GridError + '_ {
+    move |source| GridError::Io {
+        path: path.to_owned(),
+        source,
+    }
+}
+
+/// The checkpoint files of a run (`RUN/solve/`): every read and write of them.
+pub struct CheckpointDir {
+    dir: PathBuf,
+}
+
+impl CheckpointDir {
+    /// The checkpoint files in `dir`.
+    #[must_use]
+    pub fn new(dir: PathBuf) -> Self {
+        Self { dir }
+    }
+
+    /// The directory.
+    #[must_use]
+    pub fn path(&self) -> &Path {
+        &self.dir
+    }
+
+    fn generation_path(&self, g: usize) -> PathBuf {
+        self.dir.join(format!("g{g}.bin"))
+    }
+
+    /// The manifest `name` (`manifest.json` or `manifest.prev.json`), if readable.
+    fn load(&self, name: &str) -> Option<Manifest> {
+        serde_json::from_slice(&fs::read(self.dir.join(name)).ok()?).ok()
+    }
+
+    /// Remove every checkpoint file (a fresh start).
+    pub fn clear(&self) {
+        for name in ["manifest.json", "manifest.prev.json", "g0.bin", "g1.bin"] {
+            let _ = fs::remove_file(self.dir.join(name));
+        }
+    }
+
+    /// Write every block of `u` to generation `g`, fsync it, and return its sha256
+    /// and length.
+    fn write_generation(
+        &self,
+        u: &dyn BlockStore<f64>,
+        g: usize,
+    ) -> Result<(String, u64), GridError> {
+        let path = &self.generation_path(g);
+        let file = fs::File::create(path).map_err(io_err(path))?;
+        let mut out = BufWriter::with_capacity(1 << 20, file);
+        let mut sha = Sha256::new();
+        let mut len = 0u64;
+        let mut buf = Vec::new();
+        for block in u.spec().block_indices() {
+            buf.clear();
+            for v in u.read_block(block)? {
+                buf.extend_from_slice(&v.to_le_bytes());
+            }
+            sha.update(&buf);
+            out.write_all(&buf).map_err(io_err(path))?;
+            len += buf.len() as u64;
+        }
+        let file = out.into_inner().map_err(|e| io_err(path)(e.into_error()))?;
+        file.sync_all().map_err(io_err(path))?;
+        Ok((hex(&sha.finalize()), len))
+    }
+
+    /// Check the generation `m` names against it (length and sha256).
+    fn verify(&self, m: &Manifest) -> Result<(), String> {
+        let path = self.generation_path(m.generation);
+        let meta = fs::metadata(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+        if meta.len() != m.bytes {
+            return Err(format!(
+                "{}: {} bytes, the manifest says {} (torn write)",
+                path.display(),
+                meta.len(),
+                m.bytes
+            ));
+        }
+        let mut r = BufReader::new(fs::File::open(&path).map_err(|e| e.to_string())?);
+        let mut h = Sha256::new();
+        let mut buf = vec![0u8; 1 << 20];
+        loop {
+            let k = r.read(&mut buf).map_err(|e| e.to_string())?;
+            if k == 0 {
+                break;
+            }
+            h.update(&buf[..k]);
+        }
+        if hex(&h.finalize()) != m.sha256 {
+            return Err(format!("{}: checksum mismatch (damaged)", path.display()));
+        }
+        Ok(())
+    }
+
+    /// Read the generation `m` names into `u`.
+    pub fn read_generation(&self, u: &dyn BlockStore<f64>, m: &Manifest) -> Result<(), GridError> {
+        let path = &self.generation_path(m.generation);
+        let file = fs::File::open(path).map_err(io_err(path))?;
+        let mut input = BufReader::with_capacity(1 << 20, file);
+        for block in u.spec().block_indices() {
+            let len = crate::math::volume(u.spec().block_shape(block)) as usize;
+            let mut bytes = vec![0u8; len * 8];
+            input.read_exact(&mut bytes).map_err(io_err(path))?;
+            let values: Vec<f64> = bytes
+                .chunks_exact(8)
+                .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
+                .collect();
+            u.write_block(block, &values)?;
+        }
+        Ok(())
+    }
+
+    /// Make `m` the newest manifest, keeping the one before as `manifest.prev.json`.
+    fn commit(&self, m: &Manifest) -> Result<(), crate::Error> {
+        let manifest = self.dir.join("manifest.json");
+        if manifest.exists() {
+            let prev = self.dir.join("manifest.prev.json");
+            fs::copy(&manifest, &prev)
+                .map_err(io_err(&prev))
+                .map_err(crate::Error::from)?;
+        }
+        write_atomic(
+            &manifest,
+            serde_json::to_string_pretty(m).expect("json").as_bytes(),
+        )?;
+        Ok(())
+    }
+}
+
+/// The checkpoints of one solve.
+pub struct Checkpoints {
+    /// Their files.
+    pub files: CheckpointDir,
+    /// What they must match ([`identity`]).
+    pub identity: String,
+    /// Checkpoints written by this solve.
+    pub written: u64,
+}
+
+impl Checkpoints {
+    /// The newest whole checkpoint: the manifest, or the previous one when the newest
+    /// generation is damaged. Errors when none matches this run and options.
+    pub fn latest(&self, progress: &dyn Progress) -> Result<Manifest, SolveError> {
+        let bad = |reason: String| SolveError::Checkpoint {
+            path: self.files.path().to_owned(),
+            reason,
+        };
+        let mut why = Vec::new();
+        for name in ["manifest.json", "manifest.prev.json"] {
+            let Some(m) = self.files.load(name) else {
+                why.push(format!("{name}: missing or unreadable"));
+                continue;
+            };
+            if m.format != CHECKPOINT_FORMAT {
+                return Err(bad(format!(
+                    "{name} is checkpoint format {}, this harmap writes {CHECKPOINT_FORMAT}; run without --resume to start over",
+                    m.format
+                )));
+            }
+            if m.identity != self.identity {
+                return Err(bad(format!(
+                    "{name} was made for other labels or other solve options; run without --resume to start over"
+                )));
+            }
+            match self.files.verify(&m) {
+                Ok(()) => {
+                    if name != "manifest.json" {
+                        progress.warn(&format!(
+                            "the newest checkpoint is damaged ({}); resuming from the previous one",
+                            why.join("; ")
+                        ));
+                    }
+                    return Ok(m);
+                }
+                Err(e) => why.push(e),
+            }
+        }
+        Err(bad(format!("no usable checkpoint: {}", why.join("; "))))
+    }
+
+    /// Write the state `u` with `hist` as a new checkpoint.
+    pub fn write(&mut self, u: &dyn BlockStore<f64>, hist: &History) -> Result<(), crate::Error> {
+        let current = self.files.load("manifest.json").map(|m| m.generation);
+        let generation = match current {
+            Some(0) => 1,
+            _ => 0,
+        };
+        let (sha256, bytes) = self.files.write_generation(u, generation)?;
+        // Resuming loads the state into generation 0 and measures its residual again.
+        let mut h = hist.clone();
+        h.cur = 0;
+        h.residual.pop();
+        let m = Manifest {
+            format: CHECKPOINT_FORMAT,
+            identity: self.identity.clone(),
+            generation,
+            sha256,
+            bytes,
+            history: h,
+        };
+        self.files.commit(&m)?;
+        self.written += 1;
+        Ok(())
+    }
+}

@@ -1,0 +1,127 @@
+//! The multigrid passes for levels held in memory as whole arrays
+//! ([`Contiguous`](crate::grid::Contiguous) stores): the
+//! same operations as the block passes of [`super::multigrid`], done in place on the
+//! arrays, with no box copies and no halo recomputation.
+//!
+//! Every value is computed with the same arithmetic in the same order as in the block
+//! passes (red-black sweeps do not depend on the order within a color; the residual and
+//! c.Ac are summed per block, plane by plane, blocks in block order; restriction and
+//! prolongation are per node), so
+//! a level in memory and a level in scratch files give the same bytes. The tests that
+//! compare budgets check it.
+//!
+//! A half-sweep is parallel over slabs of z planes: a node of one color reads only
+//! nodes of the other color, which the half-sweep does not change. The even slabs go
+//! first, then the odd ones, so a slab borrows the planes next to it from slabs that
+//! are not being written. The other passes run over slabs of whole planes too, with
+//! buffers lent per task from pools that live with the level.
+//!
+//! Files: [`runs`] (the unknowns as runs along x, the block columns of the sums),
+//! `smooth` (red-black sweeps in place), `stats` (residual and largest change),
+//! `restrict` (full weighting of the defect), `prolong` (trilinear correction and its
+//! energy), `passes` (a V-cycle's pre- and post-smoothing passes of a level).
+
+mod passes;
+mod prolong;
+mod restrict;
+pub mod runs;
+mod smooth;
+mod stats;
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use crate::grid::{Contiguous, GridSpec};
+use crate::parallel::Pool;
+
+pub use prolong::PlanePair;
+pub use runs::Runs;
+
+/// What the whole-array passes of a level keep between passes: the runs of its
+/// unknowns (built on first use), whether both generations hold the fixed values, and
+/// buffers lent to the passes' tasks (at most [`PASS_PLANES`] planes per thread in all;
+/// the memory plan counts them, see [`pass_bytes`]).
+#[derive(Default)]
+pub struct Cache {
+    runs: std::sync::OnceLock<Runs>,
+    planes: Pool<Vec<f64>>,
+    prolong: Pool<PlanePair>,
+    energy: Pool<(PlanePair, Vec<Vec<f64>>)>,
+    /// Both generations hold the fixed values: set by the first pre-smoothing, which
+    /// writes generation 1 whole (post-smoothing swaps the two); cleared by
+    /// [`Cache::state_replaced`].
+    fixed_in_both: AtomicBool,
+}
+
+/// Planes of f64 a thread's buffers hold in the pools of one level: restriction 3,
+/// prolongation 2.5, c.Ac 5.5 (each rounded up in the sum).
+pub const PASS_PLANES: u64 = 12;
+
+/// Bytes the whole-array passes of a level of `spec` keep with `threads` threads: the
+/// pools' planes, and the runs of unknowns (counted at two runs per row).
+#[must_use]
+pub fn pass_bytes(spec: &GridSpec, threads: usize) -> u64 {
+    let [nz, ny, nx] = spec.shape;
+    threads as u64 * PASS_PLANES * ny * nx * 8 + 2 * nz * ny * 12
+}
+
+impl Cache {
+    /// Generation 0 was written whole from outside the passes (initialized, or read
+    /// from a checkpoint): the next pre-smoothing writes generation 1 whole again.
+    pub fn state_replaced(&self) {
+        self.fixed_in_both.store(false, Ordering::Relaxed);
+    }
+}
+
+/// Planes per slab when `n` planes are cut into slabs for the whole-array passes: about
+/// eight slabs per thread (work stealing evens out slabs of unequal work).
+pub(super) fn slab_planes(n: usize) -> usize {
+    n.div_ceil(8 * rayon::current_num_threads()).max(1)
+}
+
+pub(super) fn dims(spec: &GridSpec) -> [usize; 3] {
+    spec.shape.map(|c| c as usize)
+}
+
+/// A level held as whole arrays.
+pub struct Flat<'a> {
+    /// Shape and blocks.
+    pub spec: &'a GridSpec,
+    /// Unknowns are `INTERIOR`.
+    pub mask: &'a dyn Contiguous<u8>,
+    /// The two generations.
+    pub u: [&'a dyn Contiguous<f64>; 2],
+    /// The right-hand side (coarse levels).
+    pub f: Option<&'a dyn Contiguous<f64>>,
+    /// The runs of the unknowns and the passes' buffers.
+    pub cache: &'a Cache,
+}
+
+impl<'a> Flat<'a> {
+    /// A level's stores as arrays; builds the runs of its unknowns on first use.
+    #[must_use]
+    pub fn of(
+        spec: &'a GridSpec,
+        mask: &'a dyn Contiguous<u8>,
+        u: [&'a dyn Contiguous<f64>; 2],
+        f: Option<&'a dyn Contiguous<f64>>,
+        cache: &'a Cache,
+    ) -> Option<Self> {
+        cache
+            .runs
+            .get_or_init(|| Runs::of(&mask.array(), dims(spec)));
+        Some(Flat {
+            spec,
+            mask,
+            u,
+            f,
+            cache,
+        })
+    }
+
+    pub(super) fn runs(&self) -> &Runs {
+        self.cache
+            .runs
+            .get()
+            .expect("Flat::of builds the runs of the level")
+    }
+}

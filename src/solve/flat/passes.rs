@@ -1,0 +1,96 @@
+//! The pre- and post-smoothing passes of a V-cycle on a level held as arrays, with
+//! the restriction and the correction they include.
+
+use std::sync::atomic::Ordering;
+
+use rayon::prelude::*;
+
+use super::prolong::prolong_add;
+use super::restrict::restrict;
+use super::smooth::sweeps;
+use super::stats::block_stats;
+use super::{dims, Flat};
+
+impl Flat<'_> {
+    /// Pre-smoothing: generation 1 = generation 0 after `n` sweeps; with `measure`, the
+    /// residual of generation 0 first; then the restriction of the defect into
+    /// `coarse` (its right-hand side, and a zero correction in its generation 0).
+    pub fn pre(&self, n: usize, measure: bool, coarse: &Flat<'_>) -> (f64, u64) {
+        let shape = dims(self.spec);
+        let f = self.f.map(|f| f.array());
+        let f = f.as_deref().map(Vec::as_slice);
+        let u0 = self.u[0].array();
+        let st = if measure {
+            let (_, sum, n) = block_stats(self.spec, &u0, None, self.runs(), f, true);
+            (sum, n)
+        } else {
+            (0.0, 0)
+        };
+        let mut u1 = self.u[1].array_mut();
+        // Generation 1 holds the fixed values once it has been written whole.
+        let fixed = self.cache.fixed_in_both.swap(true, Ordering::Relaxed);
+        sweeps(&mut u1, Some((&u0, fixed)), self.cache, f, shape, n);
+        drop(u0);
+        let cmask = coarse.mask.array();
+        let mut cf = coarse
+            .f
+            .expect("coarse levels have a right-hand side")
+            .array_mut();
+        restrict(
+            shape,
+            &u1,
+            self.runs(),
+            f,
+            dims(coarse.spec),
+            &cmask,
+            &mut cf,
+            &self.cache.planes,
+        );
+        coarse.u[0]
+            .array_mut()
+            .par_iter_mut()
+            .for_each(|v| *v = 0.0);
+        st
+    }
+
+    /// Correction and post-smoothing: generation 0 = generation 1 plus `alpha` times the
+    /// interpolated correction of `coarse`, after `n` sweeps. Returns the largest change
+    /// against generation 0's previous content (with `change`) and the residual of the
+    /// result (with `measure`).
+    pub fn post(
+        &self,
+        n: usize,
+        coarse: &Flat<'_>,
+        alpha: f64,
+        change: bool,
+        measure: bool,
+    ) -> (f64, (f64, u64)) {
+        let shape = dims(self.spec);
+        let f = self.f.map(|f| f.array());
+        let f = f.as_deref().map(Vec::as_slice);
+        let mut u1 = self.u[1].array_mut();
+        {
+            let e = coarse.u[0].array();
+            prolong_add(
+                shape,
+                &mut u1,
+                self.runs(),
+                dims(coarse.spec),
+                &e,
+                alpha,
+                &self.cache.prolong,
+            );
+        }
+        sweeps(&mut u1, None, self.cache, f, shape, n);
+        let mut u0 = self.u[0].array_mut();
+        // The result becomes generation 0; generation 1 keeps the old state, which the
+        // next pre-smoothing overwrites.
+        std::mem::swap(&mut *u0, &mut *u1);
+        // The largest change against the old state and the residual of the new one, in
+        // one pass.
+        let old = change.then_some(&u1[..]);
+        let (max, sum, n) = block_stats(self.spec, &u0, old, self.runs(), f, measure);
+        let st = (sum, n);
+        (max, st)
+    }
+}

@@ -1,0 +1,219 @@
+//! Red-black sweeps of a whole array in place, parallel over slabs of z planes.
+
+use rayon::prelude::*;
+
+use super::runs::Runs;
+use super::{slab_planes, Cache};
+use crate::solve::stencil::defect_of;
+
+/// One red-black half-sweep of `color` over the whole grid, in place. `f`: the
+/// right-hand side (coarse levels).
+///
+/// The planes `1..nz-1` are cut into slabs, several per thread, relaxed in two rounds:
+/// the even slabs, then the odd ones. A slab reads the planes next to it, which belong
+/// to slabs of the other round (or are the grid's first and last planes), so a round
+/// borrows its own slabs mutably and the others shared: no copies and no locks.
+#[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
+pub(super) fn half_sweep(
+    u: &mut [f64],
+    runs: &Runs,
+    f: Option<&[f64]>,
+    shape: [usize; 3],
+    color: usize,
+    omega: f64,
+) {
+    let [nz, ny, nx] = shape;
+    if nz < 3 || ny < 3 || nx < 3 {
+        return;
+    }
+    let p = ny * nx;
+    let w = omega / 6.0;
+    let per = slab_planes(nz - 2);
+    for round in 0..2 {
+        // Piece 0 is plane 0, piece i (1 ..) slab i - 1 from plane 1 + (i - 1) per, the
+        // last piece plane nz - 1.
+        let (first, mut rest) = u.split_at_mut(p);
+        let mut pieces = vec![first];
+        while rest.len() > p {
+            let (head, tail) = rest.split_at_mut(per.min(rest.len() / p - 1) * p);
+            pieces.push(head);
+            rest = tail;
+        }
+        pieces.push(rest);
+        let last = pieces.len() - 1;
+        let mut shared: Vec<Option<&[f64]>> = Vec::with_capacity(pieces.len());
+        let mut work = Vec::new();
+        for (i, piece) in pieces.into_iter().enumerate() {
+            if i > 0 && i < last && (i - 1) % 2 == round {
+                work.push((i, piece));
+                shared.push(None);
+            } else {
+                shared.push(Some(piece));
+            }
+        }
+        let shared = &shared;
+        work.into_par_iter().for_each(|(i, part)| {
+            let below = shared[i - 1].expect("the slabs next to a slab are in the other round");
+            let above = shared[i + 1].expect("the slabs next to a slab are in the other round");
+            let a = 1 + (i - 1) * per;
+            let b = a + part.len() / p;
+            for z in a..b {
+                let k = z - a;
+                let (before, after) = part.split_at_mut(k * p);
+                let (cur, after) = after.split_at_mut(p);
+                let prev: &[f64] = if k == 0 {
+                    &below[below.len() - p..]
+                } else {
+                    &before[(k - 1) * p..k * p]
+                };
+                let next: &[f64] = if z + 1 == b { &above[..p] } else { &after[..p] };
+                let fz = f.map(|f| &f[z * p..(z + 1) * p]);
+                for &(y, x0, x1) in &runs.planes[z] {
+                    let (y, x0, x1) = (y as usize, x0 as usize, x1 as usize);
+                    let r = y * nx..(y + 1) * nx;
+                    let (lo, hi) = cur.split_at_mut(y * nx);
+                    let (row, hi) = hi.split_at_mut(nx);
+                    let rows = Rows {
+                        ym: &lo[(y - 1) * nx..],
+                        yp: &hi[..nx],
+                        zm: &prev[r.clone()],
+                        zp: &next[r.clone()],
+                    };
+                    rows.relax(row, fz.map(|fz| &fz[r]), [x0, x1], z + y + color, w);
+                }
+            }
+        });
+    }
+}
+
+/// The rows around the row being relaxed: y - 1, y + 1, z - 1 and z + 1.
+pub(super) struct Rows<'a> {
+    ym: &'a [f64],
+    yp: &'a [f64],
+    zm: &'a [f64],
+    zp: &'a [f64],
+}
+
+impl Rows<'_> {
+    /// Relax the voxels of the run `x0..x1` of `row` whose `(z + y + x) % 2` is the
+    /// color: `parity` is `z + y + color`.
+    #[inline]
+    pub(super) fn relax(
+        &self,
+        row: &mut [f64],
+        f: Option<&[f64]>,
+        [x0, x1]: [usize; 2],
+        parity: usize,
+        w: f64,
+    ) {
+        let first = x0 + (parity + x0) % 2;
+        // Two calls, so that the row without a right-hand side is its own loop.
+        match f {
+            None => self.sweep(row, None, first, x1, w),
+            Some(f) => self.sweep(row, Some(f), first, x1, w),
+        }
+    }
+
+    /// Relax `row` at `first, first + 2, ...` below `end` (all unknowns): the
+    /// arithmetic of [`crate::solve::boxops::BoxView::half_sweep`], term by term.
+    #[inline]
+    pub(super) fn sweep(
+        &self,
+        row: &mut [f64],
+        f: Option<&[f64]>,
+        first: usize,
+        end: usize,
+        w: f64,
+    ) {
+        let n = row.len();
+        let (ym, yp, zm, zp) = (&self.ym[..n], &self.yp[..n], &self.zm[..n], &self.zp[..n]);
+        for x in (first..end).step_by(2) {
+            let nb = row[x - 1] + row[x + 1] + ym[x] + yp[x] + zm[x] + zp[x];
+            let d = w * defect_of(f.map_or(0.0, |f| f[x]), nb, row[x]);
+            row[x] += d;
+        }
+    }
+}
+
+/// `n` red-black sweeps (red, then black) of the whole grid, in place; with `src`, of
+/// `src` into `u` (the first half-sweep reads `src` and writes the unknowns of `u`, and
+/// the fixed voxels too unless `u` already holds them).
+pub(super) fn sweeps(
+    u: &mut [f64],
+    src: Option<(&[f64], bool)>,
+    cache: &Cache,
+    f: Option<&[f64]>,
+    shape: [usize; 3],
+    n: usize,
+) {
+    let runs = cache
+        .runs
+        .get()
+        .expect("runs are built with the level's Flat");
+    for k in 0..n {
+        match src {
+            Some((src, fixed)) if k == 0 => relax_from(u, src, fixed, runs, f, shape, 0, 1.0),
+            _ => half_sweep(u, runs, f, shape, 0, 1.0),
+        }
+        half_sweep(u, runs, f, shape, 1, 1.0);
+    }
+    if n == 0 {
+        if let Some((src, _)) = src {
+            u.par_chunks_mut(1 << 16)
+                .zip(src.par_chunks(1 << 16))
+                .for_each(|(d, s)| d.copy_from_slice(s));
+        }
+    }
+}
+
+/// `u` = `src` after a half-sweep of `color`, in one pass: the unknowns of each plane
+/// are copied and those of `color` relaxed with neighbours read from `src` (they are
+/// of the other color, which the half-sweep leaves alone, so the values are those an
+/// in-place half-sweep of the copy would read). The fixed voxels are the same in
+/// every state: with `fixed`, `u` holds them already and only the unknowns are
+/// written; otherwise whole planes are copied.
+#[allow(clippy::too_many_arguments)]
+#[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
+pub(super) fn relax_from(
+    u: &mut [f64],
+    src: &[f64],
+    fixed: bool,
+    runs: &Runs,
+    f: Option<&[f64]>,
+    shape: [usize; 3],
+    color: usize,
+    omega: f64,
+) {
+    let [nz, ny, nx] = shape;
+    let p = ny * nx;
+    let w = omega / 6.0;
+    u.par_chunks_mut(p).enumerate().for_each(|(z, cur)| {
+        if !fixed {
+            cur.copy_from_slice(&src[z * p..(z + 1) * p]);
+        }
+        if z == 0 || z + 1 >= nz {
+            return;
+        }
+        let (prev, here, next) = (
+            &src[(z - 1) * p..z * p],
+            &src[z * p..(z + 1) * p],
+            &src[(z + 1) * p..(z + 2) * p],
+        );
+        let fz = f.map(|f| &f[z * p..(z + 1) * p]);
+        for &(y, x0, x1) in &runs.planes[z] {
+            let (y, x0, x1) = (y as usize, x0 as usize, x1 as usize);
+            let r = y * nx..(y + 1) * nx;
+            let rows = Rows {
+                ym: &here[(y - 1) * nx..y * nx],
+                yp: &here[(y + 1) * nx..(y + 2) * nx],
+                zm: &prev[r.clone()],
+                zp: &next[r.clone()],
+            };
+            let row = &mut cur[r.clone()];
+            if fixed {
+                row[x0..x1].copy_from_slice(&here[y * nx + x0..y * nx + x1]);
+            }
+            rows.relax(row, fz.map(|fz| &fz[r]), [x0, x1], z + y + color, w);
+        }
+    });
+}
