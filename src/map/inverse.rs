@@ -20,6 +20,7 @@ use std::sync::Arc;
 
 use glam::DVec3;
 
+use super::MapError;
 use crate::grid::{BlockStore, GridError, MemBudget};
 use crate::run::RunDir;
 use crate::trace::field::Tile;
@@ -185,7 +186,14 @@ impl Inverse {
     ) -> Result<Self, crate::Error> {
         let attrs = run.require_stage("solve")?;
         let spec = run.grid()?;
-        let ball = crate::trace::stage::stop_ball(&attrs, &spec, stop_radius, run.root())?;
+        let ball = crate::trace::stage::stop_ball(&attrs, &spec, stop_radius, run.root()).map_err(
+            |e| match e {
+                crate::Error::Trace(crate::trace::TraceError::Options(m)) => {
+                    MapError::Options(m).into()
+                }
+                e => e,
+            },
+        )?;
         let u = run.open_image::<f64>("u")?;
         let edge = spec.chunk.iter().copied().max().unwrap_or(64);
         let halo = 3;
@@ -548,30 +556,43 @@ pub fn inverse_csv(
     mem: MemBudget,
     progress: &dyn crate::progress::Progress,
 ) -> Result<InverseCounts, crate::Error> {
-    use crate::export::ExportError;
     use std::io::Write;
-    let bad = |msg: String| -> crate::Error { ExportError::Unavailable(msg).into() };
-    let text = std::fs::read_to_string(input)
-        .map_err(|e| bad(format!("{}: cannot read: {e}", input.display())))?;
+    let bad = |line: usize, what: String| -> crate::Error {
+        MapError::Points {
+            path: input.to_path_buf(),
+            line: line as u64,
+            what,
+        }
+        .into()
+    };
+    let text = std::fs::read_to_string(input).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::NotFound {
+            MapError::PointsMissing {
+                path: input.to_path_buf(),
+            }
+        } else {
+            MapError::PointsUnreadable {
+                path: input.to_path_buf(),
+                source: e,
+            }
+        }
+    })?;
     let mut lines = text
         .lines()
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty());
-    let (_, header) = lines.next().ok_or_else(|| {
-        bad(format!(
-            "{}: empty file; expected a header with phi,theta,psi",
-            input.display()
-        ))
-    })?;
+    let (_, header) = lines
+        .next()
+        .ok_or_else(|| bad(1, "empty file; expected a header with phi,theta,psi".into()))?;
     let cols: Vec<&str> = header.split(',').map(str::trim).collect();
     let col = |name: &str| {
         cols.iter()
             .position(|c| c.eq_ignore_ascii_case(name))
             .ok_or_else(|| {
-                bad(format!(
-                    "{}:1: no column `{name}` in the header `{header}` (expected phi,theta,psi)",
-                    input.display()
-                ))
+                bad(
+                    1,
+                    format!("no column `{name}` in the header `{header}` (expected phi,theta,psi)"),
+                )
             })
     };
     // u = 1 - phi keeps its precision where phi rounds to 1 (thin parts): prefer it.
@@ -584,25 +605,20 @@ pub fn inverse_csv(
         let mut v = [0.0; 3];
         for (k, &c) in idx.iter().enumerate() {
             let s = f.get(c).ok_or_else(|| {
-                bad(format!(
-                    "{}:{}: {} columns, the header has {}",
-                    input.display(),
+                bad(
                     i + 1,
-                    f.len(),
-                    cols.len()
-                ))
+                    format!("{} columns, the header has {}", f.len(), cols.len()),
+                )
             })?;
             v[k] = s
                 .parse::<f64>()
                 .ok()
                 .filter(|x| !x.is_nan())
                 .ok_or_else(|| {
-                    bad(format!(
-                        "{}:{}: `{s}` in column {} is not a number",
-                        input.display(),
+                    bad(
                         i + 1,
-                        cols[c]
-                    ))
+                        format!("`{s}` in column {} is not a number", cols[c]),
+                    )
                 })?;
         }
         rows.push(v);
