@@ -9,6 +9,9 @@
 //! - [`integrate`]: Dormand–Prince RK45 by arc length, with error control, stop reasons;
 //! - [`tiles`]: streamlines queued per tile, tiles built into a cache within the budget;
 //! - [`seeds`]: boundary voxels or surface vertices, and deterministic sampling;
+//! - `table`: the seed table `RUN/seeds/`, written and read;
+//! - [`stage`]: the stage (options, budget, the tracer, the report);
+//! - [`extract`]: surface nets of the labels, for seeds without an input mesh;
 //! - [`metrics`]: flipped triangles, collisions and distortion of the sphere map.
 //!
 //! `trace` writes the seed table `RUN/seeds/` and records `harmap.stages.trace`.
@@ -21,6 +24,7 @@ pub mod nearest;
 pub mod seeds;
 pub mod stage;
 pub mod surface;
+mod table;
 pub mod tiles;
 
 pub use integrate::{Rk45, Stop};
