@@ -44,6 +44,7 @@ impl<T: Scalar> Angles<T> {
 
     /// Write block `b` from its labels and its [x, y, z] direction components (all three
     /// zero where a voxel has none).
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     pub(super) fn write(&self, b: Idx3, lab: &[u8], d: &[Vec<f32>; 3]) -> Result<(), GridError> {
         // In f32, the precision of the directions and of the stored angles.
         self.write_angles(b, lab, |i| {
@@ -67,6 +68,7 @@ impl<T: Scalar> Angles<T> {
 
     /// Write block `b` from its labels and the (theta, psi) of each voxel, if it has
     /// them.
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn write_angles(
         &self,
         b: Idx3,

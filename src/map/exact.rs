@@ -37,6 +37,7 @@ pub fn exact_integrator() -> Rk45 {
 /// The exact map: a streamline from the center of every voxel of the solid outside the
 /// stop ball, in batches of whole blocks that fit the budget.
 #[allow(clippy::too_many_arguments)]
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 pub(super) fn exact(
     run: &RunDir,
     opts: &MapOptions,

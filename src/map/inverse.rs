@@ -57,6 +57,7 @@ struct Tiles {
 }
 
 impl Tiles {
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn key(&self, p: DVec3) -> ([u64; 3], u64) {
         let c = [p.z, p.y, p.x];
         let n = self.grid.map(|g| g.div_ceil(self.edge));

@@ -40,6 +40,9 @@ pub(super) struct Paint {
 }
 
 /// The colors of the seeds of `t` for `by`.
+#[allow(clippy::many_single_char_names)]
+// the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
+#[allow(clippy::too_many_lines)] // one match over the ways to color, each a few lines of its own
 pub(super) fn paint(run: &RunDir, t: &SeedTable, by: &ColorBy) -> Result<Paint, crate::Error> {
     let center: Option<DVec3> = run
         .attrs()?

@@ -308,6 +308,7 @@ impl Tile {
     /// nodes around the node nearest `p`, and `p`'s offset from that node along z, y and
     /// x (in [-1/2, 1/2)), if the tile holds all 27.
     #[inline]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn stencil(&self, p: DVec3) -> Option<(usize, [f64; 3])> {
         let c = [p.z, p.y, p.x];
         let strides = self.strides();
@@ -369,6 +370,7 @@ impl Tile {
     /// can lie 1e-6 voxel apart, and the f32 sum of [`Tile::spline`] rounds each
     /// evaluation by about 1e-8, differently for each.
     #[must_use]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn level_spline(&self, p: DVec3) -> Option<LevelSpline> {
         let (base, t) = self.stencil(p)?;
         let strides = self.strides();
@@ -436,6 +438,7 @@ impl Tile {
     /// every corner of that cell (ties: the first in C order), if any. The cube must lie
     /// in the tile (`r + 1` within its halo), so the answer is the same in every tile.
     #[must_use]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     pub fn escape(&self, p: DVec3, r: i64) -> Option<DVec3> {
         let c = [floor(p.z), floor(p.y), floor(p.x)];
         let (sy, sx) = (self.shape[1], self.shape[2]);
@@ -478,6 +481,7 @@ impl Tile {
     /// corner of the cell has a value: u between the nodes as the map's and the inverse
     /// map's rows give it (at a node, the node's own u).
     #[must_use]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     pub fn u_trilinear(&self, p: DVec3) -> Option<(f64, DVec3)> {
         let [lz, ly, lx] = self.cell(p)?;
         let t = [
@@ -549,6 +553,7 @@ struct RowNeighbours<'a> {
 /// one-sided difference instead. The row and its neighbours are contiguous slices, so
 /// the loop does no index arithmetic per node (the tile's build took a third less time
 /// than the loop over offsets it replaces; the same bits).
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 fn row_directions(r: RowNeighbours<'_>, stored: &[f64], out: &mut [Vec4]) {
     let n = out.len();
     let (c, stored) = (&r.c[..n], &stored[..n]);
@@ -607,6 +612,7 @@ mod tests {
 
     /// u at the nodes a tile of `n` nodes from the origin is built from: `f(x, y, z)` at
     /// node (x, y, z).
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn grid(n: usize, f: impl Fn(f64, f64, f64) -> f64) -> Block<f64> {
         let m = U_MARGIN as i64;
         let mut u = Block::filled([-m; 3], [n + 2 * U_MARGIN; 3], 0.0f64);
@@ -787,6 +793,7 @@ mod tests {
     /// u linear in x, y and z and positive (no boundary, no exterior): every node
     /// direction is the normalized gradient.
     #[test]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn linear_u_has_its_exact_direction() {
         let n = 8usize;
         let u = grid(n, |x, y, z| 0.5 * x - 0.25 * y + 0.125 * z);
@@ -835,6 +842,7 @@ mod tests {
     /// A flat sheet (u = 0) with one node of positive u two voxels away: the escape goes
     /// to it; with nothing higher around, there is none.
     #[test]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn escapes_go_to_the_nearest_higher_node() {
         let n = 10usize;
         let mut u = grid(n, |_, _, _| 0.0);

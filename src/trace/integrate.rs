@@ -38,6 +38,7 @@ mod tests {
 
     /// A tile of `n`^3 nodes whose u is `f` of the distance from c: streamlines are
     /// straight rays to c where f falls.
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn radial(n: usize, c: DVec3, f: impl Fn(f64) -> f64) -> Tile {
         let m = U_MARGIN;
         let mut u = Block::filled([-(m as i64); 3], [n + 2 * m; 3], 0.0f64);
@@ -280,6 +281,7 @@ mod tests {
     /// sphere, against the formula alone.
     #[test]
     fn the_ball_entry_shortcut_is_the_formula() {
+        #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
         fn formula(ball: &StopBall, a: DVec3, b: DVec3) -> Option<DVec3> {
             let r2 = ball.radius * ball.radius;
             let (d, f) = (b - a, a - ball.center);

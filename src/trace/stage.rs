@@ -454,6 +454,7 @@ fn seed_phi(phi: &dyn BlockStore<f64>, pts: &[DVec3]) -> Result<Vec<f64>, GridEr
 
 /// The trilinear interpolant at `p` of the box `data` (C order, `shape` from grid index
 /// `origin`), over the corners that lie in the box and have a value.
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 fn trilinear(data: &[f64], origin: [i64; 3], shape: [usize; 3], p: DVec3) -> f64 {
     let f = [p.z.floor(), p.y.floor(), p.x.floor()];
     let t = [p.z - f[0], p.y - f[1], p.x - f[2]];

@@ -137,6 +137,7 @@ impl Bits {
 
     /// The bits of row (z, y) from x on (at least 64 of them, zero beyond the row).
     #[inline]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn bits_from(&self, z: usize, y: usize, x: usize) -> u64 {
         let row = &self.rows[(z * self.shape[1] + y) * self.words..];
         let (w, b) = (x / 64, x % 64);
@@ -332,6 +333,7 @@ enum Query {
 /// The corrections of the box `[origin, origin + shape)` from `u`, which holds that box
 /// with `REACH + 1` more nodes on every side.
 #[must_use]
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 pub fn corrections(
     u: &Block<f64>,
     origin: [i64; 3],
@@ -445,6 +447,7 @@ struct Column {
 
 impl Column {
     /// s and grad s (x, y, z) at local node `l` ([`REACH`] inside the block).
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn smoothed(&mut self, bits: &Bits, l: [usize; 3]) -> (f64, [f64; 3]) {
         if self.at != Some((l[1], l[2])) {
             self.at = Some((l[1], l[2]));
@@ -484,6 +487,7 @@ impl Column {
 
 /// The sub-voxel value of the boundary node at local index `l` of `u`, from the smoothed
 /// indicator `s` there and its gradient `g` (x, y, z) of length `norm`, if defined.
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 fn boundary_value(u: &Block<f64>, l: [usize; 3], s: f64, g: [f64; 3], norm: f64) -> Option<f64> {
     // grad s points inward; the depth below the 1/2 level along the outward normal:
     let d = (s - 0.5) / norm;
@@ -510,6 +514,7 @@ enum MeshValue {
 /// direction to its nearest surface point: `u = d / (1 + d) * u(b - n)`, as from the
 /// smoothed solid), an exterior node within [`nearest::RADIUS`] (its inward normal, the
 /// direction to its nearest surface point).
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 fn from_mesh(
     u: &Block<f64>,
     mesh: &SurfaceIndex,
@@ -542,6 +547,7 @@ fn from_mesh(
 /// u at `l + q` (local node `l`, offset `q` within one node; z, y, x) interpolated
 /// trilinearly over the solid corners of its cell, if they carry at least half the
 /// weight.
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 fn interpolate_solid(u: &Block<f64>, l: [usize; 3], q: [f64; 3]) -> Option<f64> {
     let c = q.map(f64::floor);
     let t: [f64; 3] = std::array::from_fn(|a| q[a] - c[a]);
@@ -568,6 +574,7 @@ mod tests {
 
     /// A ball of radius `r` around `c` in a block of `n` nodes from `origin`: u = 1 -
     /// r'/r inside (a cone), -1e-4 just outside (the first exterior layer), NaN beyond.
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn ball(n: usize, origin: i64, c: f64, r: f64) -> Block<f64> {
         let mut u = Block::filled([origin; 3], [n; 3], f64::NAN);
         for z in 0..n {
@@ -649,6 +656,7 @@ mod tests {
     /// A sphere of radius `r` around (c, c, c): an icosahedron split four times (5,120
     /// triangles, edges of about r / 16), its vertices on the sphere. The sphere is at
     /// most r (1 - cos 2 deg) ~ 6e-4 r inside the mesh's faces.
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn sphere_mesh(c: f64, r: f64) -> SurfaceIndex {
         let t = f64::midpoint(1.0, 5f64.sqrt());
         let mut v: Vec<Vec3> = [
@@ -717,6 +725,7 @@ mod tests {
     /// stored u implies, 1 - r'/r, to within a few percent of one voxel's fall; the
     /// interior and the outside are copied. From a mesh of the sphere they come closer.
     #[test]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn boundary_values_of_a_ball_follow_its_profile() {
         let (n, r, c) = (48usize, 17.3, 23.6);
         let m = REACH as i64 + 1;
@@ -735,6 +744,7 @@ mod tests {
 
     /// The largest error of the corrected boundary values of `u`, the ball of radius `r`
     /// around (c, c, c), against its profile (voxels of u's fall).
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn profile_error(u: &Block<f64>, c: f64, r: f64, mesh: Option<&SurfaceIndex>) -> f64 {
         let n = u.shape[0];
         let shape = [n - 2 * (REACH + 1); 3];
@@ -763,6 +773,7 @@ mod tests {
 
     /// The same node gets the same bits from boxes that hold it at different places.
     #[test]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn values_do_not_depend_on_the_box() {
         let (n, r, c) = (48usize, 15.0, 23.0);
         let m = REACH as i64 + 1;
@@ -773,6 +784,7 @@ mod tests {
         }
     }
 
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn same_values_in_two_boxes(u: &Block<f64>, mesh: Option<&SurfaceIndex>) {
         let n = u.shape[0];
         let m = REACH as i64 + 1;
@@ -835,6 +847,7 @@ mod tests {
     /// The column sums give the Gaussian's direct sum, also where a window straddles two
     /// words of a bit row (blocks wider than 64 nodes).
     #[test]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn smoothed_sums_match_a_direct_sum_across_words() {
         let shape = [16usize, 16, 150];
         let mut u = Block::filled([0; 3], shape, f64::NAN);
@@ -891,6 +904,7 @@ mod tests {
     /// Outside the staircase of a ball, the smoothed surface's inward normal points at
     /// the center; the axis-aligned differences of the layers do not.
     #[test]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn inward_normals_of_a_ball_point_at_its_center() {
         let (n, r, c) = (48usize, 17.3, 23.6);
         let m = REACH + 1;
@@ -906,6 +920,7 @@ mod tests {
 
     /// The exterior normals' angles to the center `c` (each axis), with median and max
     /// under `bound`.
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn normals_point_at(u: &Block<f64>, c: f64, mesh: Option<&SurfaceIndex>, bound: [f64; 2]) {
         let n = u.shape[0];
         let m = REACH + 1;

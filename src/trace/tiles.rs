@@ -94,6 +94,7 @@ impl Tiling {
     }
 
     /// The tile that owns `p` (points off the grid belong to the nearest edge tile).
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn tile_of(&self, p: DVec3) -> u64 {
         let t = self.tiles();
         let c = [p.z, p.y, p.x];
@@ -387,6 +388,7 @@ pub struct TracedPart {
 /// seeds or lines handed over by another part, with ids below `ids`. A line's outcome
 /// and points do not depend on which part or tile advanced it.
 #[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_lines)] // one round of the scheduler reads as one loop; its steps share the queues and caches
 pub fn trace_tiled_with(
     phi: &dyn BlockStore<f64>,
     mesh: Option<&SurfaceIndex>,

@@ -50,6 +50,7 @@ impl Directions {
 
     /// Block `b` with a halo of [`HALO`], one [x, y, z] per voxel (a visit reads all
     /// three components of a voxel together).
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     pub(super) fn read_halo(&self, b: Idx3) -> Result<Vec<[f32; 3]>, GridError> {
         let r = |i: usize| -> Result<Vec<f32>, GridError> {
             Ok(self.c[i].read_block_halo(b, HALO as usize, 0.0)?.data)

@@ -62,6 +62,7 @@ impl Region<'_> {
     /// direction trilinearly at the foot from the corners of its cell, which all lie
     /// higher in u (else Flat, and the caller takes the one-cell upwind rule). A path
     /// that enters the stop ball takes the direction of its entry point.
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     pub(super) fn follow(&self, d: &[[f32; 3]], p: DVec3, ux: f64) -> Upwind {
         let reach = STEP.ceil() as i64;
         let mut q = p;

@@ -18,6 +18,7 @@ impl Ctx<'_> {
     /// Visit block `b`: compute every target voxel without a direction whose upwind
     /// neighbours have theirs (in decreasing u, so neighbours inside the block come first).
     #[allow(clippy::too_many_lines)]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     pub(super) fn visit(
         &self,
         b: Idx3,

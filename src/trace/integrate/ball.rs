@@ -14,6 +14,7 @@ pub struct StopBall {
 impl StopBall {
     /// The first point of segment `a -> b` inside the ball, if any.
     #[must_use]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     pub fn entry(&self, a: DVec3, b: DVec3) -> Option<DVec3> {
         let r2 = self.radius * self.radius;
         let d = b - a;

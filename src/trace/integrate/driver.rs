@@ -80,6 +80,7 @@ struct Lane {
 
 /// Run `lines` through `core`, up to `N` at a time with their RK45 attempts interleaved
 /// ([`advance_all`]).
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 fn drive<const N: usize>(
     core: &Core<'_>,
     lines: impl IntoIterator<Item = Line>,

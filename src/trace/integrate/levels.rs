@@ -160,6 +160,7 @@ pub fn finishes_level(rest: f64, rk: &Rk45) -> bool {
 
 /// `q` moved onto ln u = `target` by two Newton steps along grad(ln u) (each skipped
 /// where it would move more than half a voxel, or where ln u has no value).
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 pub fn onto_level<F: LevelField>(f: &mut F, mut q: DVec3, target: f64) -> DVec3 {
     for _ in 0..2 {
         let Some((l, g)) = f.level(q) else { break };

@@ -89,6 +89,7 @@ pub(super) fn resume(
 /// `k`: the field at the stage point, or why there is none (Outside for a point more
 /// than [`Rk45::reach`] from `p`, beyond what the tile must hold).
 #[inline]
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 pub(super) fn stage(
     core: &Core<'_>,
     p: DVec3,
