@@ -42,7 +42,7 @@ use crate::progress::Progress;
 use crate::trace::field::Tile;
 use crate::trace::integrate::StopBall;
 use crate::trace::nearest::SurfaceIndex;
-use schedule::{Book, Ctx, Plan};
+use schedule::{Book, Plan};
 
 /// Halo (voxels) a visit reads around its block.
 pub const HALO: u64 = 6;
@@ -104,6 +104,18 @@ pub fn worker_bytes(chunk: Idx3) -> u64 {
 /// What a visit did, and the block's directions (x, y, z) when they are to be written
 /// by the caller.
 type Visited = (Visit, Option<[Vec<f32>; 3]>);
+
+/// What every visit of a transport reads.
+pub(super) struct Ctx<'a> {
+    pub(super) u: &'a dyn BlockStore<f64>,
+    pub(super) boundary: Option<&'a SurfaceIndex>,
+    pub(super) labels: &'a dyn BlockStore<u8>,
+    pub(super) dirs: &'a Directions,
+    pub(super) ball: &'a StopBall,
+    pub(super) workers: usize,
+    pub(super) progress: &'a dyn Progress,
+    pub(super) sink: Option<Sink<'a>>,
+}
 
 /// Takes each block whose target voxels all have their direction, once, when they do:
 /// the block, its labels and its directions as [x, y, z] component blocks (all three

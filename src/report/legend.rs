@@ -3,7 +3,6 @@
 use plotters::prelude::*;
 
 use super::paint::Legend;
-use super::plot::nice_step;
 
 /// Draw `legend` in one row that ends at `right` (pixels, the text's top line).
 pub(super) fn draw_legend<DB: DrawingBackend>(
@@ -87,4 +86,18 @@ pub(super) fn draw_legend<DB: DrawingBackend>(
         }
     }
     Ok(())
+}
+
+/// A round step (1, 2 or 5 times a power of ten) that cuts `span` into at most `n`
+/// pieces.
+pub(super) fn nice_step(span: i32, n: i32) -> i32 {
+    let mut p = 1;
+    loop {
+        for m in [1, 2, 5] {
+            if span <= m * p * n {
+                return m * p;
+            }
+        }
+        p *= 10;
+    }
 }

@@ -2,11 +2,12 @@
 //! distance from the center), or for molecules by chain, domain or residue of the
 //! nearest atom; with the caption and the legend that say what the colors mean.
 
+use std::path::Path;
+
 use glam::DVec3;
 use plotters::prelude::*;
 
 use super::palette::{turbo, viridis, PALETTE};
-use super::plot::shape_name;
 use super::{domains, ColorBy, ReportError};
 use crate::run::RunDir;
 use crate::trace::SeedTable;
@@ -269,6 +270,23 @@ pub(super) fn principal_axis(c: glam::DMat3) -> DVec3 {
     } else {
         v
     }
+}
+
+/// The shape's name for titles.
+pub(super) fn shape_name(run: &RunDir) -> String {
+    let a = run.attrs().unwrap_or_default();
+    let input = a.get("input").cloned().unwrap_or_default();
+    if let Some(b) = input.get("builtin").and_then(|b| b.as_str()) {
+        return format!("built-in {b}");
+    }
+    input
+        .get("path")
+        .and_then(|p| p.as_str())
+        .and_then(|p| Path::new(p).file_name())
+        .map_or_else(
+            || run.root().display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        )
 }
 
 #[cfg(test)]

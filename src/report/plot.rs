@@ -7,27 +7,10 @@ use std::path::Path;
 use plotters::prelude::*;
 
 use super::legend::draw_legend;
-use super::paint::Legend;
+use super::paint::{shape_name, Legend};
 use super::{register_font, ReportError};
 use crate::run::RunDir;
 use crate::trace::SeedTable;
-
-/// The shape's name for titles.
-pub(super) fn shape_name(run: &RunDir) -> String {
-    let a = run.attrs().unwrap_or_default();
-    let input = a.get("input").cloned().unwrap_or_default();
-    if let Some(b) = input.get("builtin").and_then(|b| b.as_str()) {
-        return format!("built-in {b}");
-    }
-    input
-        .get("path")
-        .and_then(|p| p.as_str())
-        .and_then(|p| Path::new(p).file_name())
-        .map_or_else(
-            || run.root().display().to_string(),
-            |n| n.to_string_lossy().into_owned(),
-        )
-}
 
 /// The title line with the counts and, when measured, the bijectivity numbers.
 pub(super) fn title(run: &RunDir, t: &SeedTable) -> String {
@@ -178,18 +161,4 @@ pub(super) fn draw_atlas<DB: DrawingBackend>(
     draw_legend(root, legend, (w - 30, h - 18)).map_err(e)?;
     root.present().map_err(e)?;
     Ok(())
-}
-
-/// A round step (1, 2 or 5 times a power of ten) that cuts `span` into at most `n`
-/// pieces.
-pub(super) fn nice_step(span: i32, n: i32) -> i32 {
-    let mut p = 1;
-    loop {
-        for m in [1, 2, 5] {
-            if span <= m * p * n {
-                return m * p;
-            }
-        }
-        p *= 10;
-    }
 }

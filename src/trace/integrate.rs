@@ -7,11 +7,12 @@
 
 //!
 //! Files: `settings` ([`Rk45`]), `line` (a streamline in flight, [`Stop`], [`Advance`]),
-//! `ball` ([`StopBall`]), `tableau` (the Dormand–Prince coefficients), `state` (the
-//! line state machine of one RK45 attempt), `levels` (stepping on levels of ln u),
+//! `ball` ([`StopBall`]), `tableau` (the Dormand–Prince coefficients), `core` (what both
+//! ways of stepping share), `state` (the line state machine of one RK45 attempt), `levels` (stepping on levels of ln u),
 //! `driver` ([`advance`], [`advance_all`]: one or two lines at a time).
 
 mod ball;
+mod core;
 mod driver;
 mod levels;
 mod line;

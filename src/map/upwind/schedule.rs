@@ -8,14 +8,11 @@
 //! directions arrive through [`Decomposition::exchange`] after each round, and a block
 //! next to another part's is visited again in the next round when they did.
 
-use super::directions::Directions;
-use super::{Rule, Sink, TransportStats, Visit, HALO};
-use crate::grid::{BlockStore, Decomposition, GridError, GridSpec};
+use super::{Ctx, Rule, TransportStats, Visit, HALO};
+use crate::grid::{Decomposition, GridError, GridSpec};
 use crate::math::{volume, Idx3};
 use crate::parallel::map_bounded;
-use crate::progress::Progress;
 use crate::trace::integrate::StopBall;
-use crate::trace::nearest::SurfaceIndex;
 
 /// The blocks the stop ball touches: they hold the seeds every other voxel depends on.
 #[must_use]
@@ -210,18 +207,6 @@ struct OrderState<'b, 'c> {
     panic: Option<Box<dyn std::any::Any + Send>>,
     changed: bool,
     book: &'b mut Book<'c>,
-}
-
-/// What every visit of a transport reads.
-pub(super) struct Ctx<'a> {
-    pub(super) u: &'a dyn BlockStore<f64>,
-    pub(super) boundary: Option<&'a SurfaceIndex>,
-    pub(super) labels: &'a dyn BlockStore<u8>,
-    pub(super) dirs: &'a Directions,
-    pub(super) ball: &'a StopBall,
-    pub(super) workers: usize,
-    pub(super) progress: &'a dyn Progress,
-    pub(super) sink: Option<Sink<'a>>,
 }
 
 impl Ctx<'_> {

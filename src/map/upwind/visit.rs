@@ -7,8 +7,7 @@ use rayon::prelude::*;
 
 use super::directions::{is_target, known};
 use super::rule::{mean_of_neighbours, upwind, Region, Upwind};
-use super::schedule::Ctx;
-use super::{Rule, Visit, Visited, HALO, REACH};
+use super::{Ctx, Rule, Visit, Visited, HALO, REACH};
 use crate::grid::{Block, GridError};
 use crate::math::{volume, Idx3};
 use crate::trace::field::Tile;

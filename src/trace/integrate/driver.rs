@@ -3,7 +3,8 @@
 
 use glam::DVec3;
 
-use super::state::{after, resume, stage, start, Core, Leg, Own};
+use super::core::{Core, Leg};
+use super::state::{after, resume, stage, start, Own};
 use super::{Advance, Line, Rk45, Stop, StopBall};
 use crate::trace::field::{NoDirection, Tile};
 

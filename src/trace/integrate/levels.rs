@@ -3,7 +3,7 @@
 
 use glam::DVec3;
 
-use super::state::{arrive, move_to, owns, Core, Leg};
+use super::core::{arrive, move_to, owns, Core, Leg};
 use super::{Advance, Line, Rk45, Stop, StopBall, LEVEL_AFTER};
 use crate::trace::field::Tile;
 
