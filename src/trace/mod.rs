@@ -5,6 +5,7 @@
 //!   quadratic B-spline (a C1 field);
 //! - [`surface`]: sub-voxel values of u at the boundary nodes, for the field, from the
 //!   input mesh or the smoothed voxel solid;
+//! - `boundary`: whether those values come from the mesh or the smoothed solid;
 //! - [`nearest`]: the nearest point of a triangle surface (a bounding volume hierarchy);
 //! - [`integrate`]: Dormand–Prince RK45 by arc length, with error control, stop reasons;
 //! - [`tiles`]: streamlines queued per tile, tiles built into a cache within the budget;
@@ -16,6 +17,7 @@
 //!
 //! `trace` writes the seed table `RUN/seeds/` and records `harmap.stages.trace`.
 
+mod boundary;
 pub mod extract;
 pub mod field;
 pub mod integrate;
