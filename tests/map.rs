@@ -382,8 +382,8 @@ fn the_inverse_of_the_exact_map_returns_to_the_voxel() {
     assert!(i50 < 1e-4 && i99 < 0.05, "interior median {i50}, p99 {i99}");
 }
 
-/// cactus10k (../shared/data; skipped without it, failing under `CI=true`) at resolution 96: its arms squeeze the
-/// map by 1e-10 and more, so tracing uphill from the stop sphere lands up to 29 voxels
+/// cactus10k (../shared/data; skipped without it, failing under `CI=true`) at
+/// resolution 96: its arms squeeze the map by 1e-10 and more, so tracing uphill from the stop sphere lands up to 29 voxels
 /// off (p99 17). Undoing the exact map's steps on levels comes back to the voxel.
 #[test]
 fn the_inverse_undoes_the_exact_map_down_the_cactus_arms() {

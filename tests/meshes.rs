@@ -1,5 +1,5 @@
-//! The real meshes of ../shared/data (skipped with a note when the folder is absent, a failure under `CI=true`): labels against
-//! an independent inside test (the generalized winding number, summed exactly), and the
+//! The real meshes of ../shared/data (skipped with a note when the folder is absent, a
+//! failure under `CI=true`): labels against an independent inside test (the generalized winding number, summed exactly), and the
 //! broken meshes refused or handled as documented.
 
 use harmap::input::{load_mesh, InputOptions};
