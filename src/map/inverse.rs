@@ -16,10 +16,15 @@
 //! by `--mem`; points are processed in the order of their directions, so consecutive
 //! points climb through the same tiles.
 
+mod csv;
+
+pub use csv::{inverse_csv, InverseCounts};
+
 use std::sync::Arc;
 
 use glam::DVec3;
 
+use super::MapError;
 use crate::grid::{BlockStore, GridError, MemBudget};
 use crate::run::RunDir;
 use crate::trace::field::Tile;
@@ -52,6 +57,7 @@ struct Tiles {
 }
 
 impl Tiles {
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn key(&self, p: DVec3) -> ([u64; 3], u64) {
         let c = [p.z, p.y, p.x];
         let n = self.grid.map(|g| g.div_ceil(self.edge));
@@ -185,7 +191,14 @@ impl Inverse {
     ) -> Result<Self, crate::Error> {
         let attrs = run.require_stage("solve")?;
         let spec = run.grid()?;
-        let ball = crate::trace::stage::stop_ball(&attrs, &spec, stop_radius, run.root())?;
+        let ball = crate::trace::stage::stop_ball(&attrs, &spec, stop_radius, run.root()).map_err(
+            |e| match e {
+                crate::Error::Trace(crate::trace::TraceError::Options(m)) => {
+                    MapError::Options(m).into()
+                }
+                e => e,
+            },
+        )?;
         let u = run.open_image::<f64>("u")?;
         let edge = spec.chunk.iter().copied().max().unwrap_or(64);
         let halo = 3;
@@ -527,154 +540,6 @@ impl Inverse {
             1.0 - target
         ))
     }
-}
-
-/// Rows of an inverse-map CSV: how many, and how many had no point.
-#[derive(Clone, Copy, Debug, serde::Serialize)]
-pub struct InverseCounts {
-    /// Rows read.
-    pub rows: u64,
-    /// Rows without a point (their `status` says why).
-    pub failed: u64,
-}
-
-/// Read `input` (CSV with a header naming `phi` (or `u` = 1 - phi, preferred when
-/// present), `theta` and `psi`; other columns are ignored) and write `output`: `phi,theta,psi,x,y,z,status` per row, x, y, z empty and
-/// status the reason where a row has no point. Written under a temporary name.
-pub fn inverse_csv(
-    run: &RunDir,
-    input: &std::path::Path,
-    output: &std::path::Path,
-    mem: MemBudget,
-    progress: &dyn crate::progress::Progress,
-) -> Result<InverseCounts, crate::Error> {
-    use crate::export::ExportError;
-    use std::io::Write;
-    let bad = |msg: String| -> crate::Error { ExportError::Unavailable(msg).into() };
-    let text = std::fs::read_to_string(input)
-        .map_err(|e| bad(format!("{}: cannot read: {e}", input.display())))?;
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty());
-    let (_, header) = lines.next().ok_or_else(|| {
-        bad(format!(
-            "{}: empty file; expected a header with phi,theta,psi",
-            input.display()
-        ))
-    })?;
-    let cols: Vec<&str> = header.split(',').map(str::trim).collect();
-    let col = |name: &str| {
-        cols.iter()
-            .position(|c| c.eq_ignore_ascii_case(name))
-            .ok_or_else(|| {
-                bad(format!(
-                    "{}:1: no column `{name}` in the header `{header}` (expected phi,theta,psi)",
-                    input.display()
-                ))
-            })
-    };
-    // u = 1 - phi keeps its precision where phi rounds to 1 (thin parts): prefer it.
-    let by_u = cols.iter().any(|c| c.eq_ignore_ascii_case("u"));
-    let first = if by_u { "u" } else { "phi" };
-    let idx = [col(first)?, col("theta")?, col("psi")?];
-    let mut rows = Vec::new();
-    for (i, line) in lines {
-        let f: Vec<&str> = line.split(',').map(str::trim).collect();
-        let mut v = [0.0; 3];
-        for (k, &c) in idx.iter().enumerate() {
-            let s = f.get(c).ok_or_else(|| {
-                bad(format!(
-                    "{}:{}: {} columns, the header has {}",
-                    input.display(),
-                    i + 1,
-                    f.len(),
-                    cols.len()
-                ))
-            })?;
-            v[k] = s
-                .parse::<f64>()
-                .ok()
-                .filter(|x| !x.is_nan())
-                .ok_or_else(|| {
-                    bad(format!(
-                        "{}:{}: `{s}` in column {} is not a number",
-                        input.display(),
-                        i + 1,
-                        cols[c]
-                    ))
-                })?;
-        }
-        rows.push(v);
-    }
-    // The map's stop ball (the trace may have been run again with another since).
-    let attrs = run.attrs()?;
-    let stop_radius = attrs
-        .pointer("/stages/map/result/stop_radius")
-        .or_else(|| attrs.pointer("/stages/trace/options/stop_radius"))
-        .and_then(serde_json::Value::as_f64);
-    let inv = Inverse::new(run, stop_radius, mem)?;
-    if let Some(problem) = &inv.boundary().problem {
-        progress.warn(problem);
-    }
-    progress.start("inverse", rows.len() as u64);
-    // In the Z order of their directions, so consecutive points climb through the same
-    // tiles; results go back to the rows' order. (Bands of theta swept in psi went round
-    // the sphere for every band: with --mem 256MiB on the 512^3 ball, 10,000 points deep
-    // in the solid rebuilt their tiles over and over.)
-    let mut order: Vec<usize> = (0..rows.len()).collect();
-    order.sort_by_key(|&i| (direction_key(rows[i][1], rows[i][2]), i));
-    let sorted: Vec<InverseResult> = {
-        use rayon::prelude::*;
-        order
-            .par_iter()
-            .with_min_len(64)
-            .map(|&i| {
-                let r = &rows[i];
-                let p = if by_u {
-                    inv.point_u(r[0], r[1], r[2])
-                } else {
-                    inv.point(r[0], r[1], r[2])
-                };
-                progress.advance(1);
-                p
-            })
-            .collect()
-    };
-    let mut points: Vec<InverseResult> = vec![Ok(DVec3::ZERO); rows.len()];
-    for (p, &i) in sorted.into_iter().zip(&order) {
-        points[i] = p;
-    }
-    progress.finish();
-    let mut out = crate::export::Staged::create(output)?;
-    let mut failed = 0;
-    writeln!(out.out, "{first},theta,psi,x,y,z,status").map_err(|e| out.io(e))?;
-    for (r, p) in rows.iter().zip(&points) {
-        match p {
-            Ok(x) => writeln!(
-                out.out,
-                "{},{},{},{},{},{},ok",
-                r[0], r[1], r[2], x.x, x.y, x.z
-            ),
-            Err(why) => {
-                failed += 1;
-                writeln!(
-                    out.out,
-                    "{},{},{},,,,{}",
-                    r[0],
-                    r[1],
-                    r[2],
-                    why.replace(',', ";")
-                )
-            }
-        }
-        .map_err(|e| out.io(e))?;
-    }
-    out.commit()?;
-    Ok(InverseCounts {
-        rows: rows.len() as u64,
-        failed,
-    })
 }
 
 #[cfg(test)]

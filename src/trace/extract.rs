@@ -82,6 +82,7 @@ fn components() -> &'static [[u8; 8]; 256] {
 type Part = (Vec<(u64, DVec3)>, Vec<(u64, [u64; 4])>);
 
 /// The surface of the solid in `labels`, in world coordinates, triangles wound outward.
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 pub fn from_labels(labels: &dyn BlockStore<u8>, workers: usize) -> Result<TriMesh, GridError> {
     let spec = labels.spec();
     let n = spec.shape.map(|s| s as i64);

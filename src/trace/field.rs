@@ -31,6 +31,8 @@
 
 use glam::{DVec3, Vec4};
 
+mod levels;
+
 use super::nearest::SurfaceIndex;
 use super::surface::{self, REACH};
 use crate::grid::Block;
@@ -50,16 +52,6 @@ pub enum NoDirection {
     Outside,
     /// The interpolated gradient vanishes.
     Flat,
-}
-
-/// The f64 quadratic B-spline of a tile's node values at a point.
-struct LevelSpline {
-    /// Of the node directions (not unit length).
-    dir: DVec3,
-    /// Of u, with the exterior layers' negative values taken as 0.
-    u: f64,
-    /// The gradient of `u`.
-    grad: DVec3,
 }
 
 /// Node values of one tile and its halo: the unit direction of descent of phi (x, y,
@@ -308,6 +300,7 @@ impl Tile {
     /// nodes around the node nearest `p`, and `p`'s offset from that node along z, y and
     /// x (in [-1/2, 1/2)), if the tile holds all 27.
     #[inline]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn stencil(&self, p: DVec3) -> Option<(usize, [f64; 3])> {
         let c = [p.z, p.y, p.x];
         let strides = self.strides();
@@ -362,80 +355,11 @@ impl Tile {
         ))
     }
 
-    /// The quadratic B-spline at `p` of the node directions, of u (negative u, on the
-    /// exterior layers, taken as 0) and the gradient of the latter, all in f64, if the
-    /// tile holds the 27 nodes and all have a value. What stepping on levels of ln u
-    /// reads ([`Tile::level`], [`Tile::level_velocity`]): there, neighbouring streamlines
-    /// can lie 1e-6 voxel apart, and the f32 sum of [`Tile::spline`] rounds each
-    /// evaluation by about 1e-8, differently for each.
-    #[must_use]
-    fn level_spline(&self, p: DVec3) -> Option<LevelSpline> {
-        let (base, t) = self.stencil(p)?;
-        let strides = self.strides();
-        let mut w = [[0.0f64; 3]; 3];
-        let mut dw = [[0.0f64; 3]; 3];
-        for a in 0..3 {
-            let (lo, hi) = (0.5 - t[a], 0.5 + t[a]);
-            w[a] = [0.5 * lo * lo, 0.75 - t[a] * t[a], 0.5 * hi * hi];
-            // d/dt of the weights.
-            dw[a] = [-lo, -2.0 * t[a], hi];
-        }
-        let mut dir = DVec3::ZERO;
-        let (mut u, mut gx, mut gy, mut gz) = (0.0, 0.0, 0.0, 0.0);
-        for dz in 0..3 {
-            for dy in 0..3 {
-                let row = &self.nodes[base + dz * strides[0] + dy * strides[1]..][..3];
-                // Sums along x of the row: weighted, and weighted by the derivative.
-                let (mut d, mut su, mut sdu) = (DVec3::ZERO, 0.0, 0.0);
-                for (dx, n) in row.iter().enumerate() {
-                    let v = f64::from(n.w);
-                    if v.is_nan() {
-                        return None;
-                    }
-                    let v = v.max(0.0);
-                    d += n.truncate().as_dvec3() * w[2][dx];
-                    su += v * w[2][dx];
-                    sdu += v * dw[2][dx];
-                }
-                let wzy = w[0][dz] * w[1][dy];
-                dir += d * wzy;
-                u += su * wzy;
-                gx += sdu * wzy;
-                gy += su * w[0][dz] * dw[1][dy];
-                gz += su * dw[0][dz] * w[1][dy];
-            }
-        }
-        Some(LevelSpline {
-            dir,
-            u,
-            grad: DVec3::new(gx, gy, gz),
-        })
-    }
-
-    /// ln u at `p` and its gradient, from the quadratic B-spline of u (exterior layers
-    /// at 0), where that is positive: the levels that surface seeds step on.
-    #[must_use]
-    pub fn level(&self, p: DVec3) -> Option<(f64, DVec3)> {
-        let s = self.level_spline(p)?;
-        (s.u > 0.0).then(|| (s.u.ln(), s.grad / s.u))
-    }
-
-    /// The velocity along the field's streamline through `p` per unit of ln u: the unit
-    /// direction of the node-direction spline divided by the rate at which ln u rises
-    /// along it. None where ln u has no value or rises too slowly along the direction
-    /// (less than 1e-3 of its gradient): a streamline there cannot step on levels.
-    #[must_use]
-    pub fn level_velocity(&self, p: DVec3) -> Option<DVec3> {
-        let s = self.level_spline(p)?;
-        let f = s.dir.try_normalize()?;
-        let rise = f.dot(s.grad);
-        (s.u > 0.0 && rise > 1e-3 * s.grad.length()).then(|| f * (s.u / rise))
-    }
-
     /// The nearest node within `r` nodes of the cell of `p` (a cube) whose u exceeds u at
     /// every corner of that cell (ties: the first in C order), if any. The cube must lie
     /// in the tile (`r + 1` within its halo), so the answer is the same in every tile.
     #[must_use]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     pub fn escape(&self, p: DVec3, r: i64) -> Option<DVec3> {
         let c = [floor(p.z), floor(p.y), floor(p.x)];
         let (sy, sx) = (self.shape[1], self.shape[2]);
@@ -478,6 +402,7 @@ impl Tile {
     /// corner of the cell has a value: u between the nodes as the map's and the inverse
     /// map's rows give it (at a node, the node's own u).
     #[must_use]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     pub fn u_trilinear(&self, p: DVec3) -> Option<(f64, DVec3)> {
         let [lz, ly, lx] = self.cell(p)?;
         let t = [
@@ -549,6 +474,7 @@ struct RowNeighbours<'a> {
 /// one-sided difference instead. The row and its neighbours are contiguous slices, so
 /// the loop does no index arithmetic per node (the tile's build took a third less time
 /// than the loop over offsets it replaces; the same bits).
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 fn row_directions(r: RowNeighbours<'_>, stored: &[f64], out: &mut [Vec4]) {
     let n = out.len();
     let (c, stored) = (&r.c[..n], &stored[..n]);
@@ -607,6 +533,7 @@ mod tests {
 
     /// u at the nodes a tile of `n` nodes from the origin is built from: `f(x, y, z)` at
     /// node (x, y, z).
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn grid(n: usize, f: impl Fn(f64, f64, f64) -> f64) -> Block<f64> {
         let m = U_MARGIN as i64;
         let mut u = Block::filled([-m; 3], [n + 2 * U_MARGIN; 3], 0.0f64);
@@ -787,6 +714,7 @@ mod tests {
     /// u linear in x, y and z and positive (no boundary, no exterior): every node
     /// direction is the normalized gradient.
     #[test]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn linear_u_has_its_exact_direction() {
         let n = 8usize;
         let u = grid(n, |x, y, z| 0.5 * x - 0.25 * y + 0.125 * z);
@@ -835,6 +763,7 @@ mod tests {
     /// A flat sheet (u = 0) with one node of positive u two voxels away: the escape goes
     /// to it; with nothing higher around, there is none.
     #[test]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn escapes_go_to_the_nearest_higher_node() {
         let n = 10usize;
         let mut u = grid(n, |_, _, _| 0.0);

@@ -155,6 +155,7 @@ pub fn singular_values(f2: f64, det: f64) -> (f64, f64) {
 }
 
 /// sigma_max / sigma_min of the linear map taking triangle `p` to triangle `s`.
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 fn conformal_ratio(p: [DVec3; 3], s: [DVec3; 3]) -> f64 {
     let (Some(a), Some(b)) = (planar(p), planar(s)) else {
         return f64::INFINITY;
@@ -245,6 +246,7 @@ mod tests {
     /// from far away (counted), some from nearby (not counted), some just beyond the
     /// angle (not counted).
     #[test]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn collisions_are_the_pairs_a_brute_force_search_finds() {
         let mut rng = crate::math::TestRng(0x2545_f491_4f6c_dd1d);
         let mut next = move || rng.next_f64();

@@ -5,14 +5,19 @@
 //!   quadratic B-spline (a C1 field);
 //! - [`surface`]: sub-voxel values of u at the boundary nodes, for the field, from the
 //!   input mesh or the smoothed voxel solid;
+//! - `boundary`: whether those values come from the mesh or the smoothed solid;
 //! - [`nearest`]: the nearest point of a triangle surface (a bounding volume hierarchy);
 //! - [`integrate`]: Dormand–Prince RK45 by arc length, with error control, stop reasons;
 //! - [`tiles`]: streamlines queued per tile, tiles built into a cache within the budget;
 //! - [`seeds`]: boundary voxels or surface vertices, and deterministic sampling;
+//! - `table`: the seed table `RUN/seeds/`, written and read;
+//! - [`stage`]: the stage (options, budget, the tracer, the report);
+//! - [`extract`]: surface nets of the labels, for seeds without an input mesh;
 //! - [`metrics`]: flipped triangles, collisions and distortion of the sphere map.
 //!
 //! `trace` writes the seed table `RUN/seeds/` and records `harmap.stages.trace`.
 
+mod boundary;
 pub mod extract;
 pub mod field;
 pub mod integrate;
@@ -21,6 +26,7 @@ pub mod nearest;
 pub mod seeds;
 pub mod stage;
 pub mod surface;
+mod table;
 pub mod tiles;
 
 pub use integrate::{Rk45, Stop};

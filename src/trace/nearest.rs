@@ -311,6 +311,7 @@ fn build(tris: &mut [[Vec3; 3]], start: usize, end: usize, nodes: &mut Vec<Node>
 /// The point of triangle `t` nearest to `p` (Ericson, "Real-Time Collision Detection",
 /// 5.1.5: by the Voronoi regions of the vertices, the edges and the face).
 #[must_use]
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 pub fn closest_on_triangle(p: Vec3, t: [Vec3; 3]) -> Vec3 {
     let [a, b, c] = t;
     let (ab, ac, ap) = (b - a, c - a, p - a);
@@ -375,6 +376,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn index_agrees_with_brute_force() {
         // An octahedron of radius 6 around (10, 11, 12), each face split in four, and
         // points on a lattice through and around it.

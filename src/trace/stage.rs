@@ -1,23 +1,23 @@
 //! `trace`: seeds -> streamlines -> the seed table `RUN/seeds/` and `stages.trace`.
 
 use std::collections::BTreeMap;
-use std::fs;
 use std::path::Path;
 use std::time::Instant;
 
 use glam::DVec3;
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use serde_json::{json, Value};
+use serde_json::Value;
 
 use super::integrate::{Line, Rk45, Stop, StopBall};
 use super::metrics::{self, Collisions, SurfaceMetrics};
 use super::seeds::{self, SeedKind};
 use super::surface::Boundary;
+use super::table::write_seeds;
+pub use super::table::{read_seeds, SeedTable};
 use super::tiles::{footprint, trace_tiled, TileStats, Tiling};
-use crate::grid::{read_table, write_table, BlockStore, GridError, GridSpec, MemBudget};
+use crate::grid::{BlockStore, GridError, GridSpec, MemBudget};
 use crate::progress::Progress;
-use crate::run::{write_atomic, RunDir};
+use crate::run::RunDir;
 
 /// Options of `harmap trace`.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -109,154 +109,6 @@ pub struct TraceReport {
     /// For surface seeds, whose vertices they are: "input mesh" or "surface nets of the
     /// labels".
     pub seed_surface: Option<&'static str>,
-}
-
-/// The seed table as stored in `RUN/seeds/`.
-#[derive(Clone, Debug, Default)]
-pub struct SeedTable {
-    /// World positions (x, y, z) of the seeds.
-    pub position: Vec<DVec3>,
-    /// Polar angle of arrival (radians; NaN where the seed did not reach the center).
-    pub theta: Vec<f64>,
-    /// Azimuth of arrival (radians; NaN where it did not reach).
-    pub psi: Vec<f64>,
-    /// phi at the seed.
-    pub phi: Vec<f64>,
-    /// Stop reason codes ([`Stop`]).
-    pub stop: Vec<u8>,
-    /// Accepted steps.
-    pub steps: Vec<u32>,
-    /// Arc length (world units).
-    pub length: Vec<f64>,
-    /// World position where the streamline ended.
-    pub end: Vec<DVec3>,
-    /// For surface seeds: the vertex of the input surface each seed is (else empty).
-    pub vertex: Vec<u32>,
-}
-
-impl SeedTable {
-    /// The sphere point of seed `i`, if it reached the center.
-    #[must_use]
-    pub fn sphere(&self, i: usize) -> Option<DVec3> {
-        (self.stop[i] == Stop::Reached as u8 && self.theta[i].is_finite())
-            .then(|| super::unit(self.theta[i], self.psi[i]))
-    }
-}
-
-fn flat(v: &[DVec3]) -> Vec<f64> {
-    v.iter().flat_map(DVec3::to_array).collect()
-}
-
-fn unflat(v: &[f64]) -> Vec<DVec3> {
-    v.chunks_exact(3)
-        .map(|c| DVec3::new(c[0], c[1], c[2]))
-        .collect()
-}
-
-/// Writes one column of the seed table.
-type Column<'a> = Box<dyn Fn() -> Result<(), GridError> + Send + Sync + 'a>;
-
-/// Write the table as the group `dir_name` (Zarr v3) under the run root.
-fn write_seeds(
-    root: &Path,
-    dir_name: &str,
-    t: &SeedTable,
-    kind: SeedKind,
-) -> Result<(), crate::Error> {
-    let dir = root.join(dir_name);
-    if dir.exists() {
-        fs::remove_dir_all(&dir).map_err(|e| GridError::Io {
-            path: dir.clone(),
-            source: e,
-        })?;
-    }
-    fs::create_dir_all(&dir).map_err(|e| GridError::Io {
-        path: dir.clone(),
-        source: e,
-    })?;
-    let stops: Value = Stop::ALL
-        .iter()
-        .map(|s| ((*s as u8).to_string(), Value::from(s.name())))
-        .collect::<serde_json::Map<_, _>>()
-        .into();
-    let doc = json!({
-        "zarr_format": 3,
-        "node_type": "group",
-        "attributes": {"harmap_seeds": {
-            "kind": kind,
-            "rows": t.position.len(),
-            "columns": {
-                "position": "world x, y, z of the seed",
-                "theta": "polar angle of arrival, radians (NaN: did not reach)",
-                "psi": "azimuth of arrival, radians (NaN: did not reach)",
-                "phi": "phi at the seed",
-                "stop": "stop reason code",
-                "steps": "accepted RK45 steps",
-                "length": "arc length, world units",
-                "end": "world x, y, z where the streamline ended",
-                "vertex": "surface seeds: vertex index in the seeds' surface (stages.trace.result.seed_surface)",
-            },
-            "stop_codes": stops,
-        }}
-    });
-    write_atomic(
-        &dir.join("zarr.json"),
-        serde_json::to_string_pretty(&doc).expect("json").as_bytes(),
-    )?;
-    let p = |c: &str| format!("/{dir_name}/{c}");
-    // The columns are separate arrays: compressed and written in parallel.
-    let mut columns: Vec<Column<'_>> = vec![
-        Box::new(|| write_table(root, &p("position"), 3, &flat(&t.position), f64::NAN)),
-        Box::new(|| write_table(root, &p("theta"), 0, &t.theta, f64::NAN)),
-        Box::new(|| write_table(root, &p("psi"), 0, &t.psi, f64::NAN)),
-        Box::new(|| write_table(root, &p("phi"), 0, &t.phi, f64::NAN)),
-        Box::new(|| write_table(root, &p("stop"), 0, &t.stop, 255u8)),
-        Box::new(|| write_table(root, &p("steps"), 0, &t.steps, 0u32)),
-        Box::new(|| write_table(root, &p("length"), 0, &t.length, f64::NAN)),
-        Box::new(|| write_table(root, &p("end"), 3, &flat(&t.end), f64::NAN)),
-    ];
-    if !t.vertex.is_empty() {
-        columns.push(Box::new(|| {
-            write_table(root, &p("vertex"), 0, &t.vertex, u32::MAX)
-        }));
-    }
-    columns
-        .par_iter()
-        .with_max_len(1)
-        .map(|c| c())
-        .collect::<Result<Vec<()>, GridError>>()?;
-    Ok(())
-}
-
-/// Read the seed table of a traced run.
-pub fn read_seeds(run: &RunDir) -> Result<SeedTable, crate::Error> {
-    let root = run.root();
-    if !root.join("seeds/zarr.json").exists() {
-        return Err(crate::run::RunError::StageMissing {
-            path: root.to_owned(),
-            stage: "trace".into(),
-        }
-        .into());
-    }
-    let f64s = |c: &str| -> Result<Vec<f64>, GridError> {
-        Ok(read_table::<f64>(root, &format!("/seeds/{c}"))?.1)
-    };
-    let vertex = if root.join("seeds/vertex").exists() {
-        read_table::<u32>(root, "/seeds/vertex")?.1
-    } else {
-        Vec::new()
-    };
-    Ok(SeedTable {
-        position: unflat(&f64s("position")?),
-        theta: f64s("theta")?,
-        psi: f64s("psi")?,
-        phi: f64s("phi")?,
-        stop: read_table::<u8>(root, "/seeds/stop")?.1,
-        steps: read_table::<u32>(root, "/seeds/steps")?.1,
-        length: f64s("length")?,
-        end: unflat(&f64s("end")?),
-        vertex,
-    })
 }
 
 fn options(msg: String) -> crate::Error {
@@ -602,6 +454,7 @@ fn seed_phi(phi: &dyn BlockStore<f64>, pts: &[DVec3]) -> Result<Vec<f64>, GridEr
 
 /// The trilinear interpolant at `p` of the box `data` (C order, `shape` from grid index
 /// `origin`), over the corners that lie in the box and have a value.
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 fn trilinear(data: &[f64], origin: [i64; 3], shape: [usize; 3], p: DVec3) -> f64 {
     let f = [p.z.floor(), p.y.floor(), p.x.floor()];
     let t = [p.z - f[0], p.y - f[1], p.x - f[2]];

@@ -36,12 +36,13 @@
 //! A corrected value depends only on the mesh and the nodes within [`REACH`] of b, read
 //! with fixed sums in a fixed order, so every tile that holds b computes the same bits.
 
-use std::sync::{Arc, OnceLock};
+use std::sync::OnceLock;
 
-use super::nearest::{self, SurfaceIndex};
-use crate::grid::{Block, GridSpec, MemBudget};
-use crate::input::TriMesh;
+use super::nearest::SurfaceIndex;
+use crate::grid::Block;
 use crate::math::Vec3;
+
+pub use super::boundary::{Boundary, BOUNDARY_MESH, BOUNDARY_SMOOTHED};
 
 /// Width (voxels) of the Gaussian that smooths the solid indicator.
 const SIGMA: f64 = 2.0;
@@ -137,6 +138,7 @@ impl Bits {
 
     /// The bits of row (z, y) from x on (at least 64 of them, zero beyond the row).
     #[inline]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn bits_from(&self, z: usize, y: usize, x: usize) -> u64 {
         let row = &self.rows[(z * self.shape[1] + y) * self.words..];
         let (w, b) = (x / 64, x % 64);
@@ -179,147 +181,6 @@ pub fn bytes(shape: [usize; 3]) -> u64 {
     nodes * (8 + query + normal) + bits
 }
 
-/// Where the boundary nodes' sub-voxel values come from: the run's input surface when
-/// there is one (a triangle mesh, or the built-in starfish), else the smoothed voxel
-/// solid.
-#[derive(Clone, Default)]
-pub struct Boundary {
-    /// The input surface in voxel coordinates, indexed.
-    pub mesh: Option<Arc<SurfaceIndex>>,
-    /// Why an input mesh is not used (it could not be read), to warn about.
-    pub problem: Option<String>,
-}
-
-impl Boundary {
-    /// The boundary of a run whose voxelize stage recorded `attrs`, for a stage that
-    /// runs within `mem`.
-    #[must_use]
-    pub fn for_run(attrs: &serde_json::Value, spec: &GridSpec, mem: MemBudget) -> Self {
-        Self::with_mesh(attrs, spec, mem, None)
-    }
-
-    /// [`Boundary::for_run`] with the input mesh at hand, if it is (else it is read).
-    #[must_use]
-    pub fn with_mesh(
-        attrs: &serde_json::Value,
-        spec: &GridSpec,
-        mem: MemBudget,
-        loaded: Option<&TriMesh>,
-    ) -> Self {
-        if !Self::solid_is_the_mesh(attrs) {
-            return Self::default();
-        }
-        let cache = Self::cache_bytes(attrs, mem);
-        let read;
-        let mesh = match loaded {
-            Some(mesh) => mesh,
-            None => match super::seeds::input_surface(attrs) {
-                Ok(Some(mesh)) => {
-                    read = mesh;
-                    &read
-                }
-                Ok(None) => return Self::default(),
-                Err(problem) => return Self::smoothed_because(&problem),
-            },
-        };
-        // The index stays for the whole stage: a mesh too large for the budget gives
-        // way to the smoothed solid rather than stop the stage.
-        let index = SurfaceIndex::bytes_for(mesh.triangles.len());
-        if index > mem.work_bytes() / 4 {
-            return Self::smoothed_because(&format!(
-                "the input mesh's {} triangles need up to {} as an index, more than a quarter of the {} --mem {mem} leaves for data (a larger --mem uses the mesh)",
-                mesh.triangles.len(),
-                crate::grid::human(index),
-                crate::grid::human(mem.work_bytes())
-            ));
-        }
-        Self::of_mesh(mesh, spec, cache)
-    }
-
-    /// The smoothed solid, with `problem` to warn about.
-    fn smoothed_because(problem: &str) -> Self {
-        Self {
-            mesh: None,
-            problem: Some(format!(
-                "{problem}; the boundary nodes' sub-voxel values come from the smoothed voxel solid instead"
-            )),
-        }
-    }
-
-    /// Whether the voxel solid is the inside of the input surface, so that the surface
-    /// is where the solid's boundary is: not when the voxelizer filled cavities (their
-    /// walls lie inside the solid), closed tunnels (`--close`: the plugs' faces are no
-    /// part of the mesh) or removed pieces.
-    #[must_use]
-    pub fn solid_is_the_mesh(attrs: &serde_json::Value) -> bool {
-        ["cavity_voxels", "closing_voxels", "removed_voxels"]
-            .iter()
-            .all(|k| {
-                attrs
-                    .pointer(&format!("/stages/voxelize/result/{k}"))
-                    .and_then(serde_json::Value::as_u64)
-                    .unwrap_or(0)
-                    == 0
-            })
-    }
-
-    /// The boundary from `mesh` (world coordinates) on the grid `spec`, keeping up to
-    /// `cache_bytes` of answers for nodes.
-    #[must_use]
-    pub fn of_mesh(mesh: &TriMesh, spec: &GridSpec, cache_bytes: u64) -> Self {
-        let vertices: Vec<Vec3> = mesh
-            .vertices
-            .iter()
-            .map(|&v| spec.world_to_voxel(v))
-            .collect();
-        let index = SurfaceIndex::new(&vertices, &mesh.triangles).with_cache(cache_bytes);
-        Self {
-            mesh: Some(Arc::new(index)),
-            problem: None,
-        }
-    }
-
-    /// The cache a stage within `mem` gives the mesh's answers: about four nodes per
-    /// boundary voxel the voxelizer counted (the voxel and the exterior nodes that share
-    /// a cell with the solid), at most an eighth of the budget (the entries are charged
-    /// with the hash table's slack).
-    #[must_use]
-    pub fn cache_bytes(attrs: &serde_json::Value, mem: MemBudget) -> u64 {
-        let boundary = attrs
-            .pointer("/stages/voxelize/result/counts/1")
-            .and_then(serde_json::Value::as_u64)
-            .unwrap_or(0);
-        (boundary * 4 * nearest::CACHE_ENTRY_BYTES).min(mem.work_bytes() / 8)
-    }
-
-    /// The index, if the mesh is used.
-    #[must_use]
-    pub fn index(&self) -> Option<&SurfaceIndex> {
-        self.mesh.as_deref()
-    }
-
-    /// Bytes the index holds.
-    #[must_use]
-    pub fn bytes(&self) -> u64 {
-        self.mesh.as_ref().map_or(0, |m| m.bytes())
-    }
-
-    /// What the run records as the boundary's source.
-    #[must_use]
-    pub fn name(&self) -> &'static str {
-        if self.mesh.is_some() {
-            BOUNDARY_MESH
-        } else {
-            BOUNDARY_SMOOTHED
-        }
-    }
-}
-
-/// [`Boundary::name`] with the input mesh.
-pub const BOUNDARY_MESH: &str = "input mesh";
-/// [`Boundary::name`] without it.
-pub const BOUNDARY_SMOOTHED: &str = "smoothed voxel solid";
-
 /// The kinds of node the smoothed surface is evaluated at.
 #[derive(Clone, Copy, PartialEq)]
 enum Query {
@@ -332,6 +193,7 @@ enum Query {
 /// The corrections of the box `[origin, origin + shape)` from `u`, which holds that box
 /// with `REACH + 1` more nodes on every side.
 #[must_use]
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 pub fn corrections(
     u: &Block<f64>,
     origin: [i64; 3],
@@ -445,6 +307,7 @@ struct Column {
 
 impl Column {
     /// s and grad s (x, y, z) at local node `l` ([`REACH`] inside the block).
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn smoothed(&mut self, bits: &Bits, l: [usize; 3]) -> (f64, [f64; 3]) {
         if self.at != Some((l[1], l[2])) {
             self.at = Some((l[1], l[2]));
@@ -484,6 +347,7 @@ impl Column {
 
 /// The sub-voxel value of the boundary node at local index `l` of `u`, from the smoothed
 /// indicator `s` there and its gradient `g` (x, y, z) of length `norm`, if defined.
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 fn boundary_value(u: &Block<f64>, l: [usize; 3], s: f64, g: [f64; 3], norm: f64) -> Option<f64> {
     // grad s points inward; the depth below the 1/2 level along the outward normal:
     let d = (s - 0.5) / norm;
@@ -510,6 +374,7 @@ enum MeshValue {
 /// direction to its nearest surface point: `u = d / (1 + d) * u(b - n)`, as from the
 /// smoothed solid), an exterior node within [`nearest::RADIUS`] (its inward normal, the
 /// direction to its nearest surface point).
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 fn from_mesh(
     u: &Block<f64>,
     mesh: &SurfaceIndex,
@@ -542,6 +407,7 @@ fn from_mesh(
 /// u at `l + q` (local node `l`, offset `q` within one node; z, y, x) interpolated
 /// trilinearly over the solid corners of its cell, if they carry at least half the
 /// weight.
+#[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 fn interpolate_solid(u: &Block<f64>, l: [usize; 3], q: [f64; 3]) -> Option<f64> {
     let c = q.map(f64::floor);
     let t: [f64; 3] = std::array::from_fn(|a| q[a] - c[a]);
@@ -565,9 +431,11 @@ fn interpolate_solid(u: &Block<f64>, l: [usize; 3], q: [f64; 3]) -> Option<f64> 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::grid::{GridSpec, MemBudget};
 
     /// A ball of radius `r` around `c` in a block of `n` nodes from `origin`: u = 1 -
     /// r'/r inside (a cone), -1e-4 just outside (the first exterior layer), NaN beyond.
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn ball(n: usize, origin: i64, c: f64, r: f64) -> Block<f64> {
         let mut u = Block::filled([origin; 3], [n; 3], f64::NAN);
         for z in 0..n {
@@ -649,6 +517,7 @@ mod tests {
     /// A sphere of radius `r` around (c, c, c): an icosahedron split four times (5,120
     /// triangles, edges of about r / 16), its vertices on the sphere. The sphere is at
     /// most r (1 - cos 2 deg) ~ 6e-4 r inside the mesh's faces.
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn sphere_mesh(c: f64, r: f64) -> SurfaceIndex {
         let t = f64::midpoint(1.0, 5f64.sqrt());
         let mut v: Vec<Vec3> = [
@@ -717,6 +586,7 @@ mod tests {
     /// stored u implies, 1 - r'/r, to within a few percent of one voxel's fall; the
     /// interior and the outside are copied. From a mesh of the sphere they come closer.
     #[test]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn boundary_values_of_a_ball_follow_its_profile() {
         let (n, r, c) = (48usize, 17.3, 23.6);
         let m = REACH as i64 + 1;
@@ -735,6 +605,7 @@ mod tests {
 
     /// The largest error of the corrected boundary values of `u`, the ball of radius `r`
     /// around (c, c, c), against its profile (voxels of u's fall).
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn profile_error(u: &Block<f64>, c: f64, r: f64, mesh: Option<&SurfaceIndex>) -> f64 {
         let n = u.shape[0];
         let shape = [n - 2 * (REACH + 1); 3];
@@ -763,6 +634,7 @@ mod tests {
 
     /// The same node gets the same bits from boxes that hold it at different places.
     #[test]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn values_do_not_depend_on_the_box() {
         let (n, r, c) = (48usize, 15.0, 23.0);
         let m = REACH as i64 + 1;
@@ -773,6 +645,7 @@ mod tests {
         }
     }
 
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn same_values_in_two_boxes(u: &Block<f64>, mesh: Option<&SurfaceIndex>) {
         let n = u.shape[0];
         let m = REACH as i64 + 1;
@@ -835,6 +708,7 @@ mod tests {
     /// The column sums give the Gaussian's direct sum, also where a window straddles two
     /// words of a bit row (blocks wider than 64 nodes).
     #[test]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn smoothed_sums_match_a_direct_sum_across_words() {
         let shape = [16usize, 16, 150];
         let mut u = Block::filled([0; 3], shape, f64::NAN);
@@ -891,6 +765,7 @@ mod tests {
     /// Outside the staircase of a ball, the smoothed surface's inward normal points at
     /// the center; the axis-aligned differences of the layers do not.
     #[test]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn inward_normals_of_a_ball_point_at_its_center() {
         let (n, r, c) = (48usize, 17.3, 23.6);
         let m = REACH + 1;
@@ -906,6 +781,7 @@ mod tests {
 
     /// The exterior normals' angles to the center `c` (each axis), with median and max
     /// under `bound`.
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn normals_point_at(u: &Block<f64>, c: f64, mesh: Option<&SurfaceIndex>, bound: [f64; 2]) {
         let n = u.shape[0];
         let m = REACH + 1;

@@ -5,6 +5,12 @@
 //! the next one. The cache is bounded by the memory budget and by what is worth keeping
 //! ([`Tiling::keep_for`]); an evicted tile's node buffer goes to the next tile built.
 //! u is read by chunks, mapped where they are stored raw.
+//!
+//! Across processes ([`trace_tiled_with`]): a part builds and advances only the tiles
+//! whose first cell lies in a block its [`Decomposition`] owns. A streamline crosses to
+//! another part when it leaves its tile for one that part owns: it is handed back to
+//! the caller, with its state, to be traced on there. The tiles read only u, which the
+//! solve completed before, so the trace needs no halo exchange.
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, Mutex};
@@ -15,7 +21,10 @@ use rayon::prelude::*;
 use super::field::Tile;
 use super::integrate::{advance_all, Advance, Line, Rk45, Stop, StopBall, ESCAPE_RADIUS};
 use super::nearest::SurfaceIndex;
-use crate::grid::{copy_overlap, to_usize, Block, BlockStore, GridError, GridSpec, MappedBlock};
+use crate::grid::{
+    copy_overlap, to_usize, Block, BlockStore, Decomposition, GridError, GridSpec, MappedBlock,
+    Whole,
+};
 use crate::math::{volume, Idx3};
 use crate::progress::Progress;
 
@@ -85,6 +94,7 @@ impl Tiling {
     }
 
     /// The tile that owns `p` (points off the grid belong to the nearest edge tile).
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     fn tile_of(&self, p: DVec3) -> u64 {
         let t = self.tiles();
         let c = [p.z, p.y, p.x];
@@ -121,6 +131,15 @@ impl Tiling {
         let idx = [k / (t[1] * t[2]), (k / t[2]) % t[1], k % t[2]];
         let mid = idx.map(|i| (i as f64 + 0.5) * self.edge as f64);
         (DVec3::new(mid[2], mid[1], mid[0]) - c).length()
+    }
+
+    /// Whether `decomp` owns tile `k`: the block of its first cell is its.
+    fn owned_by(&self, k: u64, spec: &GridSpec, decomp: &dyn Decomposition) -> bool {
+        let t = self.tiles();
+        let idx = [k / (t[1] * t[2]), (k / t[2]) % t[1], k % t[2]];
+        let b: Idx3 =
+            std::array::from_fn(|a| (idx[a] * self.edge).min(self.grid[a] - 1) / spec.chunk[a]);
+        decomp.owns(spec, b)
     }
 
     /// The node box a tile holds: its cells within the grid, plus the halo.
@@ -315,8 +334,8 @@ fn advance_slice(
 
 /// Trace every line of `lines` to its end. `phi` is read through a chunk cache; tiles are
 /// built as needed, their boundary nodes' values from `mesh` where it is given (the
-/// run's input surface, [`super::surface`]). Results are indexed by `Line::id`. `paths`, when given, collects the
-/// points of every streamline (for exports).
+/// run's input surface, [`super::surface`]). Results are indexed by `Line::id`. `paths`,
+/// when given, collects the points of every streamline (for exports).
 #[allow(clippy::too_many_arguments)]
 pub fn trace_tiled(
     phi: &dyn BlockStore<f64>,
@@ -329,22 +348,84 @@ pub fn trace_tiled(
     progress: &dyn Progress,
 ) -> Result<Traced, GridError> {
     let n = lines.len();
+    let part = trace_tiled_with(
+        phi,
+        mesh,
+        tiling,
+        rk,
+        ball,
+        lines,
+        n,
+        record_paths,
+        progress,
+        &Whole,
+    )?;
+    debug_assert!(part.away.is_empty(), "one process owns every tile");
+    let out = part
+        .outcomes
+        .into_iter()
+        .map(|o| o.expect("every line finishes"))
+        .collect();
+    Ok((out, part.paths, part.stats))
+}
+
+/// What one part of a [`Decomposition`] traced ([`trace_tiled_with`]).
+#[derive(Debug)]
+pub struct TracedPart {
+    /// The outcome of every line that ended here, by id (None: elsewhere or not yet).
+    pub outcomes: Vec<Option<Outcome>>,
+    /// The points each line took here, by id, when recorded: the seed first where it
+    /// was advanced first, then every accepted point.
+    pub paths: Option<Vec<Vec<DVec3>>>,
+    /// The scheduler's counters for this part.
+    pub stats: TileStats,
+    /// Lines that left this part's tiles for another part's, as they were when they
+    /// left: to be traced on by the part that owns them.
+    pub away: Vec<Line>,
+}
+
+/// [`trace_tiled`] for the tiles `decomp` owns (see the module's docs): `lines` may be
+/// seeds or lines handed over by another part, with ids below `ids`. A line's outcome
+/// and points do not depend on which part or tile advanced it.
+#[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_lines)] // one round of the scheduler reads as one loop; its steps share the queues and caches
+pub fn trace_tiled_with(
+    phi: &dyn BlockStore<f64>,
+    mesh: Option<&SurfaceIndex>,
+    tiling: &Tiling,
+    rk: &Rk45,
+    ball: &StopBall,
+    lines: Vec<Line>,
+    ids: usize,
+    record_paths: bool,
+    progress: &dyn Progress,
+    decomp: &dyn Decomposition,
+) -> Result<TracedPart, GridError> {
+    let n = lines.len();
+    let spec = phi.spec();
+    let all = decomp.parts() == 1;
+    let mine = |k: u64| all || tiling.owned_by(k, spec, decomp);
+    let mut away = Vec::new();
     let chunks = Chunks {
         phi,
         cache: Mutex::new(Lru::new(tiling.cache_chunks)),
         decoded: std::sync::atomic::AtomicU64::new(0),
     };
     let mut tiles: Lru<Tile> = Lru::new(tiling.cache_tiles);
-    let mut out: Vec<Option<Outcome>> = vec![None; n];
-    let mut paths: Option<Vec<Vec<DVec3>>> = record_paths.then(|| vec![Vec::new(); n]);
-    if let Some(p) = paths.as_mut() {
-        for l in &lines {
-            p[l.id as usize].push(l.p);
-        }
-    }
+    let mut out: Vec<Option<Outcome>> = vec![None; ids];
+    let mut paths: Option<Vec<Vec<DVec3>>> = record_paths.then(|| vec![Vec::new(); ids]);
     let mut pending: BTreeMap<u64, Vec<Line>> = BTreeMap::new();
     for l in lines {
-        pending.entry(tiling.tile_of(l.p)).or_default().push(l);
+        let k = tiling.tile_of(l.p);
+        if !mine(k) {
+            away.push(l);
+            continue;
+        }
+        // A seed's path starts where it is advanced first.
+        if let (Some(p), 0) = (paths.as_mut(), l.steps) {
+            p[l.id as usize].push(l.p);
+        }
+        pending.entry(k).or_default().push(l);
     }
     let mut stats = TileStats::default();
     let mut seen = std::collections::HashSet::new();
@@ -439,7 +520,12 @@ pub fn trace_tiled(
                 if let Some(p) = paths.as_mut() {
                     p[l.id as usize].extend(path);
                 }
-                pending.entry(tiling.tile_of(l.p)).or_default().push(l);
+                let k = tiling.tile_of(l.p);
+                if mine(k) {
+                    pending.entry(k).or_default().push(l);
+                } else {
+                    away.push(l);
+                }
             }
         }
         // Lines within a tile are in the order they arrived, which depends on the batch
@@ -448,11 +534,12 @@ pub fn trace_tiled(
     }
     progress.finish();
     stats.chunks_decoded = chunks.decoded.load(std::sync::atomic::Ordering::Relaxed);
-    let out = out
-        .into_iter()
-        .map(|o| o.expect("every line finishes"))
-        .collect();
-    Ok((out, paths, stats))
+    Ok(TracedPart {
+        outcomes: out,
+        paths,
+        stats,
+        away,
+    })
 }
 
 /// Bytes one tile of edge `edge` with `halo` takes in the cache, the most building one
@@ -467,6 +554,109 @@ pub fn footprint(edge: u64, halo: i64, spec: &GridSpec) -> (u64, u64, u64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Parts of a decomposition, each tracing the lines in its tiles and handing the
+    /// others on, give every line the outcome and the points one process gives it.
+    #[test]
+    fn parts_handing_lines_on_trace_what_one_process_traces() {
+        use crate::grid::{MemStore, Slabs};
+        use crate::progress::Silent;
+        let n = 40u64;
+        let spec = GridSpec {
+            shape: [n; 3],
+            origin: [0.0; 3],
+            spacing: 1.0,
+            chunk: [8; 3],
+            unit: None,
+        };
+        let c = DVec3::new(20.3, 19.9, 20.2);
+        let u = MemStore::new(spec.clone(), 0.0f64);
+        for b in spec.block_indices() {
+            let (st, sh) = (spec.block_start(b), spec.block_shape(b));
+            let mut data = Vec::new();
+            for z in 0..sh[0] {
+                for y in 0..sh[1] {
+                    for x in 0..sh[2] {
+                        let p =
+                            DVec3::new((st[2] + x) as f64, (st[1] + y) as f64, (st[0] + z) as f64);
+                        data.push(1000.0 - (p - c).length());
+                    }
+                }
+            }
+            u.write_block(b, &data).unwrap();
+        }
+        let rk = Rk45::default();
+        let tiling = Tiling {
+            grid: spec.shape,
+            edge: 12,
+            halo: Tiling::halo_for(&rk),
+            cache_tiles: 8,
+            cache_chunks: 64,
+            wave: 4,
+        };
+        let ball = StopBall {
+            center: c,
+            radius: 2.0,
+        };
+        let seeds: Vec<Line> = (0..300u32)
+            .map(|i| {
+                let f = |k: u32| f64::from((i * k + 7) % 97) / 97.0 * 37.0 + 1.0;
+                Line::new(i, DVec3::new(f(31), f(17), f(53)), &rk)
+            })
+            .collect();
+        let (one, one_paths, _) =
+            trace_tiled(&u, None, &tiling, &rk, &ball, seeds.clone(), true, &Silent).unwrap();
+        let one_paths = one_paths.unwrap();
+        let parts = 3;
+        let mut inbox: Vec<Vec<Line>> = vec![seeds.clone(), Vec::new(), Vec::new()];
+        let mut got: Vec<Option<Outcome>> = vec![None; seeds.len()];
+        let mut paths: Vec<Vec<DVec3>> = vec![Vec::new(); seeds.len()];
+        let mut handed = 0;
+        for p in (0..parts).cycle().take(1000) {
+            if inbox.iter().all(Vec::is_empty) {
+                break;
+            }
+            let lines = std::mem::take(&mut inbox[p]);
+            let part = trace_tiled_with(
+                &u,
+                None,
+                &tiling,
+                &rk,
+                &ball,
+                lines,
+                seeds.len(),
+                true,
+                &Silent,
+                &Slabs { part: p, parts },
+            )
+            .unwrap();
+            for (i, o) in part.outcomes.into_iter().enumerate() {
+                if let Some(o) = o {
+                    assert!(got[i].is_none(), "line {i} ended twice");
+                    got[i] = Some(o);
+                }
+            }
+            for (i, piece) in part.paths.unwrap().into_iter().enumerate() {
+                paths[i].extend(piece);
+            }
+            handed += part.away.len();
+            inbox[(p + 1) % parts].extend(part.away);
+        }
+        assert!(inbox.iter().all(Vec::is_empty));
+        assert!(handed > 0, "the lines should cross between parts");
+        for (i, o) in one.iter().enumerate() {
+            let g = got[i].expect("every line ends in some part");
+            assert_eq!(o.stop, g.stop);
+            assert_eq!(o.steps, g.steps);
+            assert_eq!(
+                o.end.to_array().map(f64::to_bits),
+                g.end.to_array().map(f64::to_bits)
+            );
+            assert_eq!(o.length.to_bits(), g.length.to_bits());
+            assert_eq!(one_paths[i], paths[i], "line {i}");
+        }
+        assert!(one.iter().filter(|o| o.stop == Stop::Reached).count() > 250);
+    }
 
     /// The middle tile of a 3 x 3 x 3 tiling with `halo`, built from a linear, positive u
     /// (every node has a value).

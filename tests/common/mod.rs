@@ -149,21 +149,39 @@ pub fn mesh_distance(m: &TriMesh, p: Vec3) -> f64 {
         .fold(f64::INFINITY, f64::min)
 }
 
-/// The project's shared test data, if present.
+/// The folder of the project's shared test data: `HARMAP_DATA` if set, else
+/// ../shared/data next to the crate (as benches/hash_outputs.sh finds it).
+pub fn shared_data_dir() -> PathBuf {
+    match std::env::var_os("HARMAP_DATA") {
+        Some(d) if !d.is_empty() => PathBuf::from(d),
+        _ => Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"),
+    }
+}
+
+/// The project's shared test data `rel` (a file or folder under [`shared_data_dir`]),
+/// if present. Missing, the caller skips its test with a note, except under `CI=true`,
+/// where this panics: CI must run every test that needs the data (as the interop tests
+/// must run with their Python).
 pub fn shared_data(rel: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(rel);
-    p.exists().then_some(p)
+    let p = shared_data_dir().join(rel);
+    if p.exists() {
+        return Some(p);
+    }
+    assert!(
+        std::env::var("CI").as_deref() != Ok("true"),
+        "CI=true but the shared test data {} is missing: the tests that need it must run \
+         in CI (put the data folder at ../shared/data or set HARMAP_DATA)",
+        p.display()
+    );
+    eprintln!("skipped: {} not found", p.display());
+    None
 }
 
 /// A mesh of ../shared/data voxelized at `resolution` and solved, in `dir`; None
-/// (after saying so) when the data folder is absent.
+/// (after saying so) when the data folder is absent, a failure under `CI=true`
+/// ([`shared_data`]).
 pub fn solved_mesh(dir: &Path, name: &str, resolution: u64) -> Option<PathBuf> {
-    let Some(mesh) = shared_data(&format!("meshes/{name}")) else {
-        eprintln!("skipped: ../shared/data/meshes/{name} not found");
-        return None;
-    };
+    let mesh = shared_data(&format!("meshes/{name}"))?;
     let run = dir.join(format!("{name}.harmap"));
     let opts = harmap::voxelize::VoxelizeOptions {
         resolution: Some(resolution),

@@ -1,0 +1,195 @@
+//! The map stage: checks the run, picks the method, holds the budget, and records what
+//! it did.
+
+use std::path::Path;
+use std::time::Instant;
+
+use super::angles::Angles;
+use super::exact::exact;
+use super::upwind::{self, Directions, TransportStats};
+use super::{exact::exact_integrator, MapError, MapMethod, MapOptions, MapReport};
+use crate::grid::{
+    BlockStore, Decomposition, GridError, GridSpec, MappedStore, MemStore, Whole, ZarrStore,
+};
+use crate::math::Idx3;
+use crate::progress::Progress;
+use crate::run::RunDir;
+use crate::solve::driver::copy_blocks;
+use crate::trace::integrate::StopBall;
+use crate::trace::surface::Boundary;
+
+/// Compute the map of `run` and write `RUN/theta/0` and `RUN/psi/0`.
+pub fn map(
+    run: &RunDir,
+    opts: &MapOptions,
+    progress: &dyn Progress,
+) -> Result<MapReport, crate::Error> {
+    map_with(run, opts, progress, &Whole)
+}
+
+/// [`map`] over the blocks `decomp` owns: each part computes and writes the directions
+/// and angles of its blocks (see [`upwind::transport_with`] for what crosses between
+/// parts). The counts of the report are this part's.
+pub fn map_with(
+    run: &RunDir,
+    opts: &MapOptions,
+    progress: &dyn Progress,
+    decomp: &dyn Decomposition,
+) -> Result<MapReport, crate::Error> {
+    let t0 = Instant::now();
+    let _lock = run.lock()?;
+    let attrs = run.require_stage("solve")?;
+    if !run.root().join("u/0").exists() {
+        return Err(MapError::NoU {
+            run: run.root().to_path_buf(),
+        }
+        .into());
+    }
+    // A map killed half-way must not look done: forget the old record first.
+    run.update_attrs(|a| {
+        if let Some(s) = a.get_mut("stages").and_then(|s| s.as_object_mut()) {
+            s.remove("map");
+        }
+    })?;
+    let spec = run.grid()?;
+    let labels = run.open_image::<u8>("labels")?;
+    // The stop radius is the map's option here: its problems are the map's.
+    let ball = crate::trace::stage::stop_ball(&attrs, &spec, opts.stop_radius, run.root())
+        .map_err(|e| match e {
+            crate::Error::Trace(crate::trace::TraceError::Options(m)) => {
+                MapError::Options(m).into()
+            }
+            e => e,
+        })?;
+    let scratch = run.root().join("map.scratch");
+    fresh_dir(&scratch)?;
+    let boundary = Boundary::for_run(&attrs, &spec, opts.mem);
+    if let Some(problem) = &boundary.problem {
+        progress.warn(problem);
+    }
+    let t = Instant::now();
+    let (upwind_stats, stops, seconds_directions, (voxels, mapped)) = match opts.method {
+        MapMethod::Upwind => {
+            let angles = Angles::<f32>::create(run, &spec)?;
+            let dirs = Directions::create(&scratch, &spec, in_memory(&spec, opts))?;
+            let s = upwind_map(
+                run, opts, &spec, &labels, &dirs, &angles, &ball, &boundary, progress, decomp,
+            )?;
+            let seconds = t.elapsed().as_secs_f64();
+            let counts = angles.finish(run, &labels, Some(&dirs), opts.mem, progress, decomp)?;
+            (Some(s), None, seconds, counts)
+        }
+        MapMethod::Exact => {
+            let angles = Angles::<f64>::create(run, &spec)?;
+            let stops = exact(
+                run, opts, &labels, &angles, &ball, &boundary, progress, decomp,
+            )?;
+            let seconds = t.elapsed().as_secs_f64();
+            let counts = angles.finish(run, &labels, None, opts.mem, progress, decomp)?;
+            (None, Some(stops), seconds, counts)
+        }
+    };
+    let _ = std::fs::remove_dir_all(&scratch);
+    let report = MapReport {
+        method: opts.method,
+        voxels,
+        mapped,
+        stop_radius: ball.radius,
+        upwind: upwind_stats,
+        boundary: boundary.name(),
+        integrator: stops.is_some().then(exact_integrator),
+        stops,
+        seconds_directions,
+    };
+    run.record_stage("map", t0.elapsed().as_secs_f64(), opts, &report)?;
+    Ok(report)
+}
+
+/// `dir`, emptied of what an earlier map left or created.
+fn fresh_dir(dir: &Path) -> Result<(), GridError> {
+    let io = |e| GridError::Io {
+        path: dir.to_path_buf(),
+        source: e,
+    };
+    if dir.exists() {
+        std::fs::remove_dir_all(dir).map_err(io)?;
+    }
+    std::fs::create_dir_all(dir).map_err(io)
+}
+
+/// Whether the upwind map's direction field stays in memory: when it takes at most
+/// half the budget.
+fn in_memory(spec: &GridSpec, opts: &MapOptions) -> bool {
+    Directions::bytes(spec) <= opts.mem.work_bytes() / 2
+}
+
+/// The upwind map's transport within the budget, with u and the labels copied into
+/// memory when they fit, and each block's angles written as soon as its directions are
+/// all known.
+#[allow(clippy::too_many_arguments)]
+fn upwind_map(
+    run: &RunDir,
+    opts: &MapOptions,
+    spec: &GridSpec,
+    labels: &ZarrStore<u8>,
+    dirs: &Directions,
+    angles: &Angles<f32>,
+    ball: &StopBall,
+    boundary: &Boundary,
+    progress: &dyn Progress,
+    decomp: &dyn Decomposition,
+) -> Result<TransportStats, crate::Error> {
+    let u = run.open_image::<f64>("u")?;
+    let in_memory = in_memory(spec, opts);
+    let held = upwind::held_bytes(spec, ball)
+        + boundary.bytes()
+        + if in_memory {
+            Directions::bytes(spec)
+        } else {
+            0
+        };
+    // Blocks are visited more than once, each read with a halo from the
+    // neighbouring chunks: when the direction field is in memory and u and the
+    // labels fit beside it within half the budget, they are read from the
+    // run once, into memory.
+    let copies = spec.num_voxels() * (8 + 1);
+    let cached = in_memory && held + copies <= opts.mem.work_bytes() / 2;
+    let workers = opts.mem.workers(
+        "the upwind map (a block of u, labels and directions per worker)",
+        held + if cached { copies } else { 0 },
+        upwind::worker_bytes(spec.chunk) + Angles::<f32>::block_bytes(spec),
+        rayon::current_num_threads(),
+    )?;
+    // A block's angles are written as soon as all its voxels have a direction,
+    // while its data is at hand.
+    let sink = |b: Idx3, lab: &[u8], d: &[Vec<f32>; 3]| angles.write(b, lab, d);
+    let transport = |u: &dyn BlockStore<f64>, labels: &dyn BlockStore<u8>| {
+        upwind::transport_with(
+            u,
+            boundary.index(),
+            labels,
+            dirs,
+            ball,
+            workers,
+            progress,
+            Some(&sink),
+            decomp,
+        )
+    };
+    if !cached {
+        return Ok(transport(&u, labels)?);
+    }
+    // u stored raw is read in place, through maps of its chunks kept for the
+    // map; otherwise, like the labels, it is copied into memory.
+    let mapped = MappedStore::new(&u);
+    let held = MemStore::new(spec.clone(), f64::NAN);
+    let mu: &dyn BlockStore<f64> = if let Some(m) = &mapped {
+        m
+    } else {
+        copy_blocks(&u, &held, workers)?;
+        &held
+    };
+    let ml = MemStore::new(spec.clone(), 0u8);
+    copy_blocks(labels, &ml, workers)?;
+    Ok(transport(mu, &ml)?)
+}
