@@ -7,5 +7,6 @@ mod map;
 mod meshes;
 mod molecules;
 mod solve;
+mod topology;
 mod trace;
 mod voxelize;

@@ -369,7 +369,11 @@ fn a_probe_ladder_keeps_the_first_probe_that_gives_genus_0() {
     }
     let xyzr = write(d.path(), "ring.xyzr", &ring);
     let out = d.path().join("ring.harmap");
-    let one = voxelize(&xyzr, &out, &["--spacing", "0.3", "--probe", "1.4"]);
+    let one = voxelize(
+        &xyzr,
+        &out,
+        &["--spacing", "0.3", "--probe", "1.4", "--topology", "strict"],
+    );
     assert_eq!(one.status.code(), Some(2));
     let err = String::from_utf8_lossy(&one.stderr);
     assert!(

@@ -177,7 +177,11 @@ fn handles_and_pieces_are_refused_with_advice() {
         &sphere(Vec3::ZERO, 1.0, 16, 32),
         &sphere(Vec3::new(3.0, 0.0, 0.0), 0.7, 16, 32),
     );
-    let (_d, _out, r) = vox(&two, &res(32));
+    let strict = VoxelizeOptions {
+        topology: harmap::voxelize::TopologyMode::Strict,
+        ..res(32)
+    };
+    let (_d, _out, r) = vox(&two, &strict);
     let msg = r.unwrap_err().to_string();
     assert!(
         msg.contains("2 separate pieces") && msg.contains("--keep-largest"),

@@ -8,7 +8,7 @@ use harmap::input::molecule::MoleculeOptions;
 use harmap::input::{InputOptions, RawDtype, RawSpec};
 use harmap::pipeline::{voxelize_new_run, Source};
 use harmap::voxelize::spheres::MolSurface;
-use harmap::voxelize::{labels::NAMES, Scratch, VoxelizeOptions};
+use harmap::voxelize::{labels::NAMES, repair_summary, Scratch, TopologyMode, VoxelizeOptions};
 
 use super::progress::Bars;
 use super::{Global, UsageError};
@@ -22,8 +22,9 @@ use super::{Global, UsageError};
 /// any of them optionally .gz. Molecules become the solid --surface says (default: ses
 /// with a 1.4 Angstrom probe); waters are left out, and other hetero groups unless
 /// --keep-hetatm. The solid must be one piece of genus 0: enclosed cavities are filled,
-/// and handles or several pieces are refused unless --allow-genus or --keep-largest
-/// says otherwise.
+/// and handles and extra pieces are repaired (reported; see --topology), except for a
+/// mesh whose own surface has handles, which is refused unless --topology repair,
+/// --allow-genus or --keep-largest says otherwise.
 ///
 /// Labels written to RUN/labels/0: 0 exterior, 1 boundary, 2 interior, 3 center,
 /// 4..7 the exterior layers 1..4.
@@ -67,7 +68,14 @@ pub struct VoxelizeArgs {
     /// phi = 0 on every voxel within this many voxels of the center.
     #[arg(long, value_name = "VOXELS", default_value_t = 2.0)]
     pub center_radius: f64,
-    /// Go on when the solid has handles (genus > 0) or several pieces.
+    /// When the voxel solid is not one genus-0 piece: repair it (drop specks, cut or
+    /// fill handles with as few voxel changes as possible, and report them) or refuse
+    /// (strict). Default: repair, except a mesh whose own surface has handles (refused
+    /// unless --topology repair is given).
+    #[arg(long, value_enum, value_name = "MODE")]
+    pub topology: Option<TopologyArg>,
+    /// Go on with the raw solid when it has handles (genus > 0) or several pieces (no
+    /// repair).
     #[arg(long)]
     pub allow_genus: bool,
     /// Keep only the largest piece of the solid.
@@ -134,6 +142,15 @@ pub enum SurfaceArg {
     Sas,
     /// Solvent-excluded (molecular) surface.
     Ses,
+}
+
+/// `--topology` values.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum TopologyArg {
+    /// Make the solid one genus-0 piece, reporting every change.
+    Repair,
+    /// Refuse a solid that is not one genus-0 piece.
+    Strict,
 }
 
 /// `--scratch` values.
@@ -207,6 +224,11 @@ impl VoxelizeArgs {
                 close: self.close,
                 probe_ladder: self.probe[1..].to_vec(),
                 skip_handle_search: false,
+                topology: match self.topology {
+                    None => TopologyMode::Auto,
+                    Some(TopologyArg::Repair) => TopologyMode::Repair,
+                    Some(TopologyArg::Strict) => TopologyMode::Strict,
+                },
             },
             InputOptions {
                 raw,
@@ -249,6 +271,9 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     ));
     if let Some(p) = r.probe_summary() {
         g.say(&format!("probe: {p}"));
+    }
+    if let Some(rep) = &r.repair {
+        g.say(&format!("topology repair: {}", repair_summary(rep)));
     }
     if r.closing_voxels > 0 {
         g.say(&format!(

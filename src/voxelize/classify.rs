@@ -147,3 +147,9 @@ pub fn classify(
     }
     Ok(total)
 }
+
+/// Bytes a worker of the label pass holds (haloed block, distances, output, codec).
+pub(crate) fn worker_bytes(chunk: u64) -> u64 {
+    let h = chunk + 2 * HALO as u64;
+    3 * h * h * h + 3 * chunk * chunk * chunk
+}

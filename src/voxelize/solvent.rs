@@ -38,7 +38,7 @@ use std::collections::HashMap;
 use glam::DVec3;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 
-use super::spheres::{Balls, SAMPLE};
+use super::balls::{Balls, SAMPLE};
 use crate::progress::Progress;
 
 /// Free samples of one sphere closer than this (Angstrom) are in one patch, and a

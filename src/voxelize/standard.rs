@@ -129,6 +129,8 @@ pub fn standard_ball(
         handles: Vec::new(),
         handle_radius: 0,
         probe_trials: Vec::new(),
+        surface_topology: None,
+        repair: None,
         warnings: Vec::new(),
         timings: Vec::new(),
     })
