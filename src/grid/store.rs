@@ -101,6 +101,22 @@ pub enum GridError {
     /// Grids that must share their shape and blocks do not.
     #[error("grids do not match: {0}")]
     Mismatch(String),
+    /// A chunk does not hold what harmap wrote: its checksum differs, it is cut short,
+    /// or it is missing from an array whose every chunk was written. Fix: run the stage
+    /// that wrote the array again (the run's files were changed or damaged on disk).
+    #[error(
+        "zarr array {path}, chunk {chunk:?} ({file}): {what}; the file was changed or damaged after harmap wrote it: run the stage that writes {path} again"
+    )]
+    Corrupt {
+        /// The array path (`/phi/0`).
+        path: String,
+        /// The chunk's index.
+        chunk: Vec<u64>,
+        /// The chunk's file.
+        file: std::path::PathBuf,
+        /// What is wrong.
+        what: String,
+    },
     /// The memory budget cannot hold what a stage needs.
     #[error(
         "memory budget {budget} is too small: {what} needs {needed}; use --mem {suggest} or more"
@@ -287,24 +303,42 @@ pub struct MappedBlock<T> {
 
 impl<T: Scalar> MappedBlock<T> {
     /// Map `file`, which must hold exactly `len` values of `T` in the machine's byte
-    /// order; None when its size is not that (the caller reads it the slow way, which
-    /// reports what is wrong).
+    /// order, followed by their CRC32C (little-endian, as Zarr's `crc32c` codec writes
+    /// it) when `checksum`; None when its size is not that (the caller reads it the slow
+    /// way, which reports what is wrong). With `verify`, the checksum is checked here: one
+    /// that differs is an error (`Err` of kind `InvalidData`).
     ///
     /// # Safety
     /// The file must not be truncated or written while mapped (the run directory's lock
     /// keeps other harmap processes out; a truncation by anything else would end the
     /// process with SIGBUS), and `T` must be a plain number type, for which every bit
     /// pattern is a value (the [`Scalar`] types of this crate are).
-    pub(crate) unsafe fn map(file: &std::fs::File, len: usize) -> std::io::Result<Option<Self>> {
-        if file.metadata()?.len() != (len * T::SIZE) as u64 || len == 0 {
+    pub(crate) unsafe fn map(
+        file: &std::fs::File,
+        len: usize,
+        checksum: bool,
+        verify: bool,
+    ) -> std::io::Result<Option<Self>> {
+        let data = len * T::SIZE;
+        let total = data + if checksum { 4 } else { 0 };
+        if file.metadata()?.len() != total as u64 || len == 0 {
             return Ok(None);
         }
         // SAFETY: as the caller promises; the length was checked just above.
         let map = unsafe { memmap2::Mmap::map(file)? };
-        if map.len() != len * T::SIZE
-            || !(map.as_ptr() as usize).is_multiple_of(std::mem::align_of::<T>())
+        if map.len() != total || !(map.as_ptr() as usize).is_multiple_of(std::mem::align_of::<T>())
         {
             return Ok(None);
+        }
+        if checksum && verify {
+            let stored = u32::from_le_bytes(map[data..].try_into().expect("4 bytes"));
+            let got = crc32c::crc32c(&map[..data]);
+            if stored != got {
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::InvalidData,
+                    format!("checksum mismatch (stored {stored:#010x}, computed {got:#010x})"),
+                ));
+            }
         }
         Ok(Some(Self {
             map,
