@@ -39,12 +39,18 @@ impl Error {
     pub fn is_bad_input(&self) -> bool {
         match self {
             Error::Input(_) | Error::Trace(_) => true,
-            Error::Grid(e) => matches!(e, crate::grid::GridError::Budget { .. }),
+            Error::Grid(e) => matches!(
+                e,
+                crate::grid::GridError::Budget { .. } | crate::grid::GridError::Corrupt { .. }
+            ),
             Error::Run(e) => e.is_bad_input(),
             Error::Voxelize(e) => e.is_bad_input(),
             Error::Solve(e) => e.is_bad_input(),
             Error::Map(e) => e.is_bad_input(),
-            Error::Export(e) => matches!(e, crate::export::ExportError::Unavailable(_)),
+            Error::Export(e) => matches!(
+                e,
+                crate::export::ExportError::Unavailable(_) | crate::export::ExportError::Refused(_)
+            ),
             Error::Report(e) => matches!(e, crate::report::ReportError::Unavailable(_)),
         }
     }

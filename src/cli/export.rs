@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use harmap::export::image::{export_image, export_ome_zarr, Field, ImageFormat};
+use harmap::export::{check_target, ExportKind};
 use harmap::grid::MemBudget;
 use harmap::run::RunDir;
 
@@ -38,6 +39,12 @@ use super::{Global, UsageError};
 ///
 /// The file is written under a temporary name and renamed when whole.
 ///
+/// An export never destroys what it did not create: it replaces an existing PATH only
+/// when PATH is its own earlier output of the same format; --force also lets it replace
+/// a file or an empty folder, or write a new file inside a run directory. A run
+/// directory, a run's files and a non-empty folder harmap did not write are never
+/// replaced.
+///
 /// Examples:
 ///   harmap export spot.harmap --format csv -o spot-seeds.csv
 ///   harmap export spot.harmap --format obj-sphere -o spot-sphere.obj
@@ -63,6 +70,11 @@ pub struct Args {
     /// ome-zarr: default all).
     #[arg(long, value_enum)]
     pub field: Option<FieldArg>,
+    /// Replace an existing file (or empty folder) that is not this format's earlier
+    /// output, or write inside a run directory. Never replaces a run or a non-empty
+    /// folder harmap did not write.
+    #[arg(long)]
+    pub force: bool,
     /// Memory budget (vtk-streamlines traces again; images are written in slabs).
     #[arg(long, value_name = "SIZE", default_value = "1GiB")]
     pub mem: MemBudget,
@@ -135,6 +147,16 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         )
         .into());
     }
+    let kind = match a.format {
+        Format::Csv => ExportKind::Csv,
+        Format::ObjSphere => ExportKind::ObjSphere,
+        Format::VtkStreamlines => ExportKind::VtkStreamlines,
+        Format::Nifti => ExportKind::Image(ImageFormat::Nifti),
+        Format::Vti => ExportKind::Image(ImageFormat::Vti),
+        Format::Dx => ExportKind::Image(ImageFormat::Dx),
+        Format::OmeZarr => ExportKind::OmeZarr,
+    };
+    check_target(&a.output, kind, a.force).map_err(harmap::Error::from)?;
     let one = a.field.map_or(Field::Phi, FieldArg::field);
     let some = a.field.map_or_else(|| available(&run), |f| vec![f.field()]);
     let (n, what) = match a.format {

@@ -49,6 +49,15 @@ pub struct Args {
 pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     let run = RunDir::open(&a.run).map_err(harmap::Error::from)?;
     let c = inverse_csv(&run, &a.points, &a.output, a.mem, &Bars::new(g))?;
+    if c.rows > 0 && c.failed == c.rows {
+        // Nothing usable came out: a run that exits 0 here looks like a success.
+        anyhow::bail!(
+            "{}: none of the {} rows got a point (see the status column of {})",
+            a.points.display(),
+            c.rows,
+            a.output.display()
+        );
+    }
     g.say(&format!(
         "{}: {} rows, {} with a point, {} without (see their status)",
         a.output.display(),

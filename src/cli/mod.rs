@@ -160,10 +160,36 @@ fn exit_code(e: &anyhow::Error) -> u8 {
     1
 }
 
+/// `--threads` beyond this many times the cores only costs: each worker holds its own
+/// buffers within `--mem`, and ten thousand threads spent minutes starting and
+/// contending on a 64^3 grid that takes 0.08 s.
+const THREADS_PER_CORE: usize = 4;
+
+/// The thread count to use for `--threads n` on a machine of `cores`: at most
+/// [`THREADS_PER_CORE`] per core, with the warning to print when capped.
+fn cap_threads(n: usize, cores: usize) -> (usize, Option<String>) {
+    let cap = THREADS_PER_CORE * cores.max(1);
+    if n > cap {
+        (
+            cap,
+            Some(format!(
+                "--threads {n} is more than {THREADS_PER_CORE} per core on this machine of {cores} cores: using {cap} (results are the same for any count)"
+            )),
+        )
+    } else {
+        (n, None)
+    }
+}
+
 fn run(cli: Cli) -> anyhow::Result<()> {
     if let Some(n) = cli.threads {
         if n == 0 {
             return Err(UsageError("--threads must be at least 1".into()).into());
+        }
+        let cores = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
+        let (n, warning) = cap_threads(n, cores);
+        if let Some(w) = warning {
+            eprintln!("warning: {w}");
         }
         rayon::ThreadPoolBuilder::new()
             .num_threads(n)
@@ -190,5 +216,19 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Export(a) => export::run(&a, &global),
         Command::Info(a) => info::run(&a, &global),
         Command::Bench(a) => bench::run(&a, &global),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn threads_are_capped_with_a_warning() {
+        assert_eq!(cap_threads(8, 2), (8, None));
+        let (n, w) = cap_threads(10_000, 2);
+        assert_eq!(n, 8);
+        assert!(w.is_some_and(|w| w.contains("10000") && w.contains("using 8")));
+        assert_eq!(cap_threads(3, 0).0, 3);
     }
 }

@@ -237,6 +237,7 @@ impl VoxelizeArgs {
                     keep_hetatm: self.keep_hetatm,
                     radius: self.radius,
                 },
+                mem: Some(self.mem),
             },
         ))
     }

@@ -128,8 +128,8 @@ mod tests {
     }
 
     /// A raw array's full blocks map to the same values `read_block` gives; edge
-    /// blocks, chunks never written, chunk files of the wrong size and compressed arrays
-    /// are not mapped (read_block reads them, and reports the wrong size).
+    /// blocks, missing chunks, chunk files of the wrong size and compressed arrays are
+    /// not mapped (read_block reads them, and reports what is wrong).
     #[test]
     fn mapped_blocks_are_the_stored_blocks() {
         let spec = GridSpec {
@@ -180,11 +180,16 @@ mod tests {
         }
         // 3 x 1 x 3 blocks; the last along x is an edge block; one was removed.
         assert_eq!(mapped, 3 * 2 - 1);
-        assert!(raw
-            .read_block(unwritten)
-            .unwrap()
-            .iter()
-            .all(|v| v.is_nan()));
+        // Every chunk was written, so the removed one is missing, not the fill value.
+        assert!(raw.is_complete());
+        let e = raw.read_block(unwritten).unwrap_err();
+        assert!(
+            matches!(&e, GridError::Corrupt { path, chunk, .. } if path == "/raw" && chunk == &[2, 0, 1]),
+            "{e}"
+        );
+        let reopened = ZarrStore::<f64>::open(dir.path(), "/raw", spec.clone()).unwrap();
+        assert!(reopened.is_complete());
+        assert!(reopened.read_block(unwritten).is_err());
         // A chunk file cut short is not mapped, and reading it is an error.
         let cut = dir.path().join("raw/c/0/0/0");
         let bytes = std::fs::read(&cut).unwrap();
@@ -209,6 +214,52 @@ mod tests {
         assert!(wrong.read_block([0, 0, 0]).is_err());
         // A block off the grid is an error, not a panic.
         assert!(matches!(raw.map_block([9, 9, 9]), Some(Err(_))));
+    }
+
+    /// Every chunk carries its checksum: a changed byte is an error naming the array and
+    /// the chunk, whether the chunk is mapped in place or decoded; a chunk missing from
+    /// an array not yet whole reads as the fill value.
+    #[test]
+    fn damaged_and_missing_chunks_are_errors() {
+        let spec = GridSpec {
+            shape: [8, 8, 16],
+            origin: [0.0; 3],
+            spacing: 1.0,
+            chunk: [8, 8, 8],
+            unit: None,
+        };
+        let dir = tempfile::tempdir().unwrap();
+        for (name, compression) in [("/r", Compression::None), ("/z", Compression::Zstd(1))] {
+            let st = ZarrStore::<f64>::create(
+                dir.path(),
+                name,
+                spec.clone(),
+                f64::NAN,
+                compression,
+                serde_json::Map::new(),
+            )
+            .unwrap();
+            // One chunk written: not whole, so the other reads as the fill value.
+            st.write_block([0, 0, 0], &[1.5; 512]).unwrap();
+            assert!(!st.is_complete());
+            assert!(st.read_block([0, 0, 1]).unwrap().iter().all(|v| v.is_nan()));
+            // A chunk of fill values is written too, and then the array is whole.
+            st.write_block([0, 0, 1], &[f64::NAN; 512]).unwrap();
+            assert!(st.is_complete());
+            let file = dir.path().join(&name[1..]).join("c/0/0/0");
+            let mut bytes = std::fs::read(&file).unwrap();
+            let k = bytes.len() / 2;
+            bytes[k] ^= 0x10;
+            std::fs::write(&file, &bytes).unwrap();
+            let st = ZarrStore::<f64>::open(dir.path(), name, spec.clone()).unwrap();
+            let e = st.read_block([0, 0, 0]).unwrap_err().to_string();
+            assert!(e.contains(name) && e.contains("[0, 0, 0]"), "{e}");
+            if let Some(m) = st.map_block([0, 0, 0]) {
+                let e = m.err().expect("a damaged chunk does not map").to_string();
+                assert!(e.contains("checksum"), "{e}");
+            }
+            assert!(st.read_region([0, 0, 0], [8, 8, 16], 0.0).is_err());
+        }
     }
 
     /// `write_block_from` (MemStore's override and the default) writes the block's part

@@ -102,6 +102,22 @@ pub enum GridError {
     /// Grids that must share their shape and blocks do not.
     #[error("grids do not match: {0}")]
     Mismatch(String),
+    /// A chunk does not hold what harmap wrote: its checksum differs, it is cut short,
+    /// or it is missing from an array whose every chunk was written. Fix: run the stage
+    /// that wrote the array again (the run's files were changed or damaged on disk).
+    #[error(
+        "zarr array {path}, chunk {chunk:?} ({file}): {what}; the file was changed or damaged after harmap wrote it: run the stage that writes {path} again"
+    )]
+    Corrupt {
+        /// The array path (`/phi/0`).
+        path: String,
+        /// The chunk's index.
+        chunk: Vec<u64>,
+        /// The chunk's file.
+        file: std::path::PathBuf,
+        /// What is wrong.
+        what: String,
+    },
     /// The memory budget cannot hold what a stage needs.
     #[error(
         "memory budget {budget} is too small: {what} needs {needed}; use --mem {suggest} or more"
@@ -296,30 +312,52 @@ pub fn fill_with<T: Scalar>(
 /// A block's stored bytes mapped into memory, read as `[T]` ([`BlockStore::map_block`]).
 pub struct MappedBlock<T> {
     map: memmap2::Mmap,
+    /// The bytes of the values (the map may end with a checksum).
+    data: usize,
     _t: std::marker::PhantomData<T>,
 }
 
 impl<T: Scalar> MappedBlock<T> {
     /// Map `file`, which must hold exactly `len` values of `T` in the machine's byte
-    /// order; None when its size is not that, or the map is not aligned for `T` (the
-    /// caller reads it the slow way, which reports what is wrong).
+    /// order, followed by their CRC32C (little-endian, as Zarr's `crc32c` codec writes
+    /// it) when `checksum`; None when its size is not that (the caller reads it the slow
+    /// way, which reports what is wrong). With `verify`, the checksum is checked here: one
+    /// that differs is an error (`Err` of kind `InvalidData`).
     ///
     /// # Safety
     /// The file must not be truncated or written while mapped (the run directory's lock
     /// keeps other harmap processes out; a truncation by anything else would end the
-    /// process with SIGBUS). Any bytes are valid values of a [`Scalar`] (it is
-    /// [`bytemuck::Pod`]), so the contents need no check.
-    pub(crate) unsafe fn map(file: &std::fs::File, len: usize) -> std::io::Result<Option<Self>> {
-        if file.metadata()?.len() != (len * T::SIZE) as u64 || len == 0 {
+    /// process with SIGBUS), and `T` must be a plain number type, for which every bit
+    /// pattern is a value (a [`Scalar`] is [`bytemuck::Pod`]).
+    pub(crate) unsafe fn map(
+        file: &std::fs::File,
+        len: usize,
+        checksum: bool,
+        verify: bool,
+    ) -> std::io::Result<Option<Self>> {
+        let data = len * T::SIZE;
+        let total = data + if checksum { 4 } else { 0 };
+        if file.metadata()?.len() != total as u64 || len == 0 {
             return Ok(None);
         }
         // SAFETY: as the caller promises; the length was checked just above.
         let map = unsafe { memmap2::Mmap::map(file)? };
-        if map.len() != len * T::SIZE || bytemuck::try_cast_slice::<u8, T>(&map[..]).is_err() {
+        if map.len() != total || bytemuck::try_cast_slice::<u8, T>(&map[..data]).is_err() {
             return Ok(None);
+        }
+        if checksum && verify {
+            let stored = u32::from_le_bytes(map[data..].try_into().expect("4 bytes"));
+            let got = crc32c::crc32c(&map[..data]);
+            if stored != got {
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::InvalidData,
+                    format!("checksum mismatch (stored {stored:#010x}, computed {got:#010x})"),
+                ));
+            }
         }
         Ok(Some(Self {
             map,
+            data,
             _t: std::marker::PhantomData,
         }))
     }
@@ -330,6 +368,6 @@ impl<T: Scalar> std::ops::Deref for MappedBlock<T> {
 
     fn deref(&self) -> &[T] {
         // Size and alignment were checked in `map`, and T is Pod.
-        bytemuck::cast_slice(&self.map[..])
+        bytemuck::cast_slice(&self.map[..self.data])
     }
 }

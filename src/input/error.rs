@@ -36,6 +36,23 @@ pub enum InputError {
         /// What is wrong.
         message: String,
     },
+    /// The file decodes to more bytes than `--mem` lets the readers hold (an endless
+    /// stream such as `/dev/zero`, a gzip bomb, or a shape too large for the budget).
+    ///
+    /// Fix: check that the file is the one meant; give a larger `--mem`.
+    #[error("{}: the input is larger than the readers may hold under --mem ({limit} of decoded bytes): {seen} read by byte {position} of the file (line {line} of the text); check that this is the file you meant, or give a larger --mem (the readers may hold a third of it)", path.display())]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Decoded bytes read when it was refused, human readable.
+        seen: String,
+        /// Bytes of the file itself (compressed, for `.gz`) read by then.
+        position: u64,
+        /// Lines of the decoded text read by then (1-based).
+        line: u64,
+        /// The bound, human readable.
+        limit: String,
+    },
     /// The file name does not say which format it is.
     #[error("{}: unknown input format '{ext}'; harmap reads .obj, .stl, .ply, TetGen .node/.ele, molecules and point sets (.pdb, .cif/.mmcif, .pqr, .xyzr, .xyz, .csv with --radius), Zarr label volumes (a directory with zarr.json) and .raw volumes (with --raw-shape and --raw-dtype), each of the files optionally gzip-compressed (.gz)", path.display())]
     UnknownFormat {

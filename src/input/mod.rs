@@ -7,7 +7,6 @@
 
 mod error;
 mod mesh;
-mod mmcif;
 pub mod molecule;
 mod obj;
 mod ply;
@@ -21,7 +20,7 @@ use std::path::{Path, PathBuf};
 
 pub use error::InputError;
 pub use mesh::{MeshTopology, TriMesh};
-pub use source::{extension, read_bytes, sha256_file};
+pub use source::{extension, input_limit, read_bytes, read_bytes_within, sha256_file};
 pub use volume::{LabelVolume, RawDtype, RawSpec};
 
 /// A shape to voxelize.
@@ -42,6 +41,17 @@ pub struct InputOptions {
     pub raw: Option<RawSpec>,
     /// How atoms and points are read.
     pub molecule: molecule::MoleculeOptions,
+    /// The memory budget (`--mem`; None: the default): the decoded bytes of a file may
+    /// take a third of it ([`input_limit`]).
+    pub mem: Option<crate::grid::MemBudget>,
+}
+
+impl InputOptions {
+    /// The most decoded bytes an input file may have.
+    #[must_use]
+    pub fn limit(&self) -> u64 {
+        input_limit(self.mem.unwrap_or_default())
+    }
 }
 
 /// Read the shape at `path`, choosing the reader by extension.
@@ -67,21 +77,28 @@ pub fn load(path: &Path, options: &InputOptions) -> Result<Shape, InputError> {
             LabelVolume::open_raw(path, &spec).map(Shape::Volume)
         }
         e if molecule::is_molecule(e) || options.molecule.radius.is_some() => {
-            molecule::read(path, e, &read_bytes(path)?, &options.molecule).map(Shape::Molecule)
+            let bytes = read_bytes_within(path, options.limit())?;
+            molecule::read(path, e, &bytes, &options.molecule).map(Shape::Molecule)
         }
-        _ => load_mesh(path).map(Shape::Mesh),
+        _ => mesh_within(path, options.limit()).map(Shape::Mesh),
     }
 }
 
 /// Read a surface (or the boundary of a tetrahedral mesh) from `path`, and check that
 /// every coordinate is finite and every index in range.
+/// The file's decoded bytes may take a third of the default `--mem`.
 pub fn load_mesh(path: &Path) -> Result<TriMesh, InputError> {
+    mesh_within(path, input_limit(crate::grid::MemBudget::default()))
+}
+
+fn mesh_within(path: &Path, limit: u64) -> Result<TriMesh, InputError> {
     let (ext, _) = extension(path);
+    let bytes = |p: &Path| read_bytes_within(p, limit);
     let mesh = match ext.as_str() {
-        "obj" => obj::read(path, &read_bytes(path)?)?,
-        "stl" => stl::read(path, &read_bytes(path)?)?,
-        "ply" => ply::read(path, &read_bytes(path)?)?,
-        "node" | "ele" => tetgen::read(path)?,
+        "obj" => obj::read(path, &bytes(path)?)?,
+        "stl" => stl::read(path, &bytes(path)?)?,
+        "ply" => ply::read(path, &bytes(path)?)?,
+        "node" | "ele" => tetgen::read(path, limit)?,
         _ => {
             return Err(InputError::UnknownFormat {
                 path: PathBuf::from(path),

@@ -8,19 +8,19 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use super::{extension, read_bytes, InputError, TriMesh};
+use super::{extension, read_bytes_within, InputError, TriMesh};
 use crate::math::Vec3;
 
 /// Read a TetGen mesh given either its `.node` or `.ele` file (each possibly `.gz`).
-pub(super) fn read(path: &Path) -> Result<TriMesh, InputError> {
+pub(super) fn read(path: &Path, limit: u64) -> Result<TriMesh, InputError> {
     let (ext, _) = extension(path);
     let (node_path, ele_path) = if ext == "node" {
         (path.to_owned(), sibling(path, "ele")?)
     } else {
         (sibling(path, "node")?, path.to_owned())
     };
-    let nodes = parse_node(&node_path, &read_bytes(&node_path)?)?;
-    let tets = parse_ele(&ele_path, &read_bytes(&ele_path)?, &nodes)?;
+    let nodes = parse_node(&node_path, &read_bytes_within(&node_path, limit)?)?;
+    let tets = parse_ele(&ele_path, &read_bytes_within(&ele_path, limit)?, &nodes)?;
     Ok(boundary(nodes.points, &tets))
 }
 
@@ -379,7 +379,7 @@ mod tests {
 
     fn error(node: &str, ele: &str) -> String {
         let (_dir, n, _) = pair(node, ele);
-        read(&n)
+        read(&n, u64::MAX)
             .expect_err("the input should be rejected")
             .to_string()
     }
@@ -388,7 +388,7 @@ mod tests {
     fn single_tet_boundary_is_outward() {
         for ele in ["1 4 0\n1 1 2 3 4\n", "1 4 0\n1 2 1 3 4\n"] {
             let (_dir, n, _) = pair("4 3 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n", ele);
-            let m = read(&n).unwrap();
+            let m = read(&n, u64::MAX).unwrap();
             assert_eq!(m.triangles.len(), 4);
             assert!(m.topology().is_oriented_closed(), "{:?}", m.topology());
             assert!(
@@ -403,7 +403,7 @@ mod tests {
     fn two_tets_share_an_interior_face() {
         let (_dir, n, e) = pair(NODE, ELE);
         for path in [&n, &e] {
-            let m = read(path).unwrap();
+            let m = read(path, u64::MAX).unwrap();
             assert_eq!(m.triangles.len(), 6);
             assert!(m.topology().is_oriented_closed(), "{:?}", m.topology());
             assert!(
@@ -426,10 +426,10 @@ mod tests {
         let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
         gz.write_all(b"1 10 1\n0 0 1 2 3 0 1 2 3 0 1 7\n").unwrap();
         std::fs::write(dir.path().join("q.1.ele.gz"), gz.finish().unwrap()).unwrap();
-        let m = read(&dir.path().join("q.1.node")).unwrap();
+        let m = read(&dir.path().join("q.1.node"), u64::MAX).unwrap();
         assert_eq!(m.triangles.len(), 4);
         assert!(m.signed_volume() > 0.0);
-        let m = read(&dir.path().join("q.1.ele.gz")).unwrap();
+        let m = read(&dir.path().join("q.1.ele.gz"), u64::MAX).unwrap();
         assert_eq!(m.triangles.len(), 4);
     }
 
@@ -437,7 +437,7 @@ mod tests {
     fn missing_sibling() {
         let dir = tempfile::tempdir().unwrap();
         let n = write(dir.path(), "alone.node", "1 3 0 0\n1 0 0 0\n");
-        let e = read(&n).unwrap_err().to_string();
+        let e = read(&n, u64::MAX).unwrap_err().to_string();
         assert!(e.contains("alone.ele") && e.contains("alone.ele.gz"), "{e}");
     }
 
@@ -536,7 +536,7 @@ mod tests {
             return;
         };
         assert!(status.success());
-        let m = read(&dir.path().join("cube.1.ele")).unwrap();
+        let m = read(&dir.path().join("cube.1.ele"), u64::MAX).unwrap();
         assert!(m.topology().is_oriented_closed(), "{:?}", m.topology());
         assert!(
             (m.signed_volume() - 1.0).abs() < 1e-9,

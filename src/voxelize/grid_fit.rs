@@ -26,6 +26,16 @@ pub fn check_shape(shape: [u64; 3], what: &str) -> Result<(), VoxelizeError> {
     Ok(())
 }
 
+/// `v` as a person reads it: plain decimals for ordinary sizes, scientific notation
+/// for tiny or huge ones (Rust prints 1e-300 with 300 digits).
+fn readable(v: f64) -> String {
+    if v == 0.0 || (1e-4..1e9).contains(&v.abs()) {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
+}
+
 fn check_padding(padding: u64) -> Result<(), VoxelizeError> {
     if padding > MAX_AXIS {
         return Err(VoxelizeError::Options(format!(
@@ -68,7 +78,7 @@ pub fn fit_bbox(lo: Vec3, hi: Vec3, o: &VoxelizeOptions) -> Result<GridSpec, Vox
                 "--spacing must be a positive length, got {s}"
             )))
         }
-        (None, Some(s)) => (s, format!("--spacing {s}")),
+        (None, Some(s)) => (s, format!("--spacing {}", readable(s))),
         (None, None) => (
             longest / DEFAULT_RESOLUTION as f64,
             format!("the default --resolution {DEFAULT_RESOLUTION}"),
@@ -76,7 +86,11 @@ pub fn fit_bbox(lo: Vec3, hi: Vec3, o: &VoxelizeOptions) -> Result<GridSpec, Vox
     };
     let n = extent.to_array().map(|e| ((e / h) - 1e-9).ceil().max(1.0));
     if n.iter().any(|&c| c > MAX_AXIS as f64) {
-        check_shape([u64::MAX; 3], &what)?;
+        // Too many to count in integers: say how many, in scientific notation.
+        return Err(VoxelizeError::Options(format!(
+            "{what} gives a grid of {:.3e} x {:.3e} x {:.3e} voxels; the largest grid harmap handles is 2^36 voxels with at most {MAX_AXIS} along an axis; choose a smaller --resolution or a larger --spacing",
+            n[0], n[1], n[2]
+        )));
     }
     let shape_xyz = n.map(|c| c as u64 + 2 * o.padding);
     let shape = [shape_xyz[2], shape_xyz[1], shape_xyz[0]];

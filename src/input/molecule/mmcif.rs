@@ -26,11 +26,11 @@
 
 use std::collections::{BTreeMap, BTreeSet, HashSet};
 
-use super::molecule::{
-    capitalize, element_from_name, keep_hetero, note_missing, table_radius, Atom, Molecule,
-    MoleculeOptions, Reader, WATERS,
+use super::rules::{
+    capitalize, element_from_name, keep_hetero, note_missing, table_radius, Reader, WATERS,
 };
-use super::InputError;
+use super::{Atom, Molecule, MoleculeOptions};
+use crate::input::InputError;
 
 /// What a token is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -522,8 +522,8 @@ pub(super) fn read(
 mod tests {
     use std::path::Path;
 
-    use super::super::molecule::{read as read_any, Atom, Molecule, MoleculeOptions};
-    use super::super::InputError;
+    use super::super::{read as read_any, Atom, Molecule, MoleculeOptions};
+    use crate::input::InputError;
 
     fn cif(text: &str, o: &MoleculeOptions) -> Result<Molecule, InputError> {
         read_any(Path::new("t.cif"), "cif", text.as_bytes(), o)
