@@ -334,6 +334,7 @@ pub fn transport(
             }
         }
         loop {
+            crate::progress::check_interrupt(progress)?;
             let first = book.stats.rounds[slot] == 0 && rule == Rule::Upwind;
             book.stats.rounds[slot] += 1;
             let mut changed = false;
@@ -354,6 +355,7 @@ pub fn transport(
                 changed |= ctx.ordered(&mut book, &order)?;
             } else {
                 for g in &colours {
+                    crate::progress::check_interrupt(progress)?;
                     changed |= ctx.group(&mut book, g, rule, false)?;
                 }
             }
@@ -498,6 +500,7 @@ impl Ctx<'_> {
             // A panic stops the others too (they would wait for this block forever)
             // and is raised again once they have.
             let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                crate::progress::check_interrupt(self.progress)?;
                 self.visit(b, Rule::Upwind, false, true)
             }));
             let mut st = lock();

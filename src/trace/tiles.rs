@@ -350,6 +350,9 @@ pub fn trace_tiled(
     let mut seen = std::collections::HashSet::new();
     progress.start("trace", n as u64);
     while !pending.is_empty() {
+        // A stop request ends the trace between rounds (a round is a fraction of a
+        // second of work).
+        crate::progress::check_interrupt(progress)?;
         stats.rounds += 1;
         // This round: the waiting tiles farthest from the center, at most a wave of
         // them. Streamlines flow inward, so a tile is mostly visited once, after the
