@@ -4,6 +4,7 @@ mod cli;
 mod common;
 mod interop;
 mod map;
+mod pipeline;
 mod meshes;
 mod molecules;
 mod solve;

@@ -180,12 +180,14 @@ fn same_voxelization(source: &Source<'_>, opts: &PipelineOptions) -> Result<bool
     if freshness(&attrs, "voxelize") == Freshness::Missing {
         return Ok(false);
     }
+    let input: InputRecord = attrs
+        .get("input")
+        .and_then(|i| serde_json::from_value(i.clone()).ok())
+        .unwrap_or_default();
     let same_input = match source {
-        Source::Starfish => attrs.pointer("/input/builtin").is_some(),
-        Source::File(p, _) => {
-            crate::input::sha256_file(p).ok().as_deref()
-                == attrs.pointer("/input/sha256").and_then(Value::as_str)
-        }
+        Source::Starfish => input.builtin.is_some(),
+        // A directory (a Zarr label volume) has no digest: taken as the same input.
+        Source::File(p, _) => crate::input::sha256_file(p).ok() == input.sha256,
         Source::Mesh(..) => false,
     };
     let recorded = stage_record(&attrs, "voxelize").map_or(Value::Null, |r| r.options);
@@ -201,6 +203,15 @@ fn same_voxelization(source: &Source<'_>, opts: &PipelineOptions) -> Result<bool
             "another input".into()
         },
     })
+}
+
+/// The run's record of its input (`harmap.input`), the fields compared.
+#[derive(Default, Deserialize)]
+struct InputRecord {
+    /// The input file's SHA-256 (none for built-in shapes and directories).
+    sha256: Option<String>,
+    /// The built-in shape's name.
+    builtin: Option<String>,
 }
 
 /// `None` when `stage` is done with options `want`, fresh, and its outputs are there

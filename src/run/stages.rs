@@ -243,6 +243,19 @@ impl RunDir {
         })
     }
 
+    /// `Err` when `stage` is done but stale (a missing stage is left to the caller,
+    /// which may have its own message for it): what reads a stage's outputs calls it.
+    pub fn refuse_stale(&self, stage: &str) -> Result<(), RunError> {
+        match freshness(&self.attrs()?, stage) {
+            Freshness::Stale(why) => Err(RunError::StageStale {
+                path: self.root.clone(),
+                stage: stage.into(),
+                why,
+            }),
+            _ => Ok(()),
+        }
+    }
+
     /// The freshness of `stage` (see [`freshness`]).
     pub fn freshness(&self, stage: &str) -> Result<Freshness, RunError> {
         Ok(freshness(&self.attrs()?, stage))
