@@ -33,7 +33,11 @@ fn options(out: &Path) -> PipelineOptions {
 }
 
 fn stage<'a>(r: &'a pipeline::PipelineReport, name: &str) -> &'a StageRun {
-    &r.stages.iter().find(|s| s.0 == name).expect("stage listed").1
+    &r.stages
+        .iter()
+        .find(|s| s.0 == name)
+        .expect("stage listed")
+        .1
 }
 
 /// A sphere run end to end through the library: every stage done and fresh, every
@@ -51,7 +55,10 @@ fn the_pipeline_runs_skips_and_reruns_what_changed() {
     let mut opts = options(&out);
     let r = pipeline::run(&source, &opts, &Silent).unwrap();
     for s in ["voxelize", "solve", "trace", "map"] {
-        assert!(matches!(stage(&r, s), StageRun::Ran { again: None, .. }), "{s}");
+        assert!(
+            matches!(stage(&r, s), StageRun::Ran { again: None, .. }),
+            "{s}"
+        );
     }
     let attrs = RunDir::open(&out).unwrap().attrs().unwrap();
     for s in ["voxelize", "solve", "trace", "map"] {
@@ -59,7 +66,11 @@ fn the_pipeline_runs_skips_and_reruns_what_changed() {
     }
     let (mapped, voxels) = r.summary.mapped;
     assert!(voxels > 1000 && mapped == voxels, "{mapped} of {voxels}");
-    assert!(r.summary.reached_fraction > 0.99, "{}", r.summary.reached_fraction);
+    assert!(
+        r.summary.reached_fraction > 0.99,
+        "{}",
+        r.summary.reached_fraction
+    );
     assert!(r.summary.flipped.is_some(), "surface seeds give the flips");
     assert!(out.with_extension("atlas.png").exists());
 
@@ -71,12 +82,18 @@ fn the_pipeline_runs_skips_and_reruns_what_changed() {
     opts.solve.rtol = 1e-4;
     let changed = pipeline::run(&source, &opts, &Silent).unwrap();
     assert_eq!(stage(&changed, "voxelize"), &StageRun::Skipped);
-    let StageRun::Ran { again: Some(why), .. } = stage(&changed, "solve") else {
+    let StageRun::Ran {
+        again: Some(why), ..
+    } = stage(&changed, "solve")
+    else {
         panic!("the solve did not run again");
     };
     assert!(why.contains("rtol"), "{why}");
     for s in ["trace", "map"] {
-        let StageRun::Ran { again: Some(why), .. } = stage(&changed, s) else {
+        let StageRun::Ran {
+            again: Some(why), ..
+        } = stage(&changed, s)
+        else {
             panic!("{s} did not run again");
         };
         assert!(why.contains("solve"), "{s}: {why}");
@@ -89,13 +106,18 @@ fn the_pipeline_runs_skips_and_reruns_what_changed() {
     opts.trace.rk.atol = 1e-6;
     let t = pipeline::run(&source, &opts, &Silent).unwrap();
     assert_eq!(stage(&t, "solve"), &StageRun::Skipped);
-    assert!(matches!(stage(&t, "trace"), StageRun::Ran { again: Some(w), .. } if w.contains("atol")));
+    assert!(
+        matches!(stage(&t, "trace"), StageRun::Ran { again: Some(w), .. } if w.contains("atol"))
+    );
     assert_eq!(stage(&t, "map"), &StageRun::Skipped);
 
     // Other voxelization options are another run: refused, nothing touched.
     opts.voxelize.resolution = Some(24);
     let e = pipeline::run(&source, &opts, &Silent).unwrap_err();
-    assert!(matches!(e, PipelineError::OtherRun { .. }) && e.is_bad_input(), "{e}");
+    assert!(
+        matches!(e, PipelineError::OtherRun { .. }) && e.is_bad_input(),
+        "{e}"
+    );
     assert!(e.to_string().contains("resolution"), "{e}");
 }
 
@@ -167,7 +189,10 @@ fn a_new_solve_makes_the_trace_stale_and_its_readers_refuse() {
     assert!(matches!(run.freshness("map").unwrap(), Freshness::Stale(_)));
     let e = harmap::trace::read_seeds(&run).unwrap_err();
     assert!(e.is_bad_input(), "{e}");
-    assert!(e.to_string().contains("out of date") && e.to_string().contains("harmap trace"), "{e}");
+    assert!(
+        e.to_string().contains("out of date") && e.to_string().contains("harmap trace"),
+        "{e}"
+    );
     // The same solve options as the trace saw: fresh again.
     harmap::solve::solve(&run, &SolveOptions::default(), &never, &Silent).unwrap();
     assert_eq!(run.freshness("trace").unwrap(), Freshness::Done);

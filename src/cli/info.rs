@@ -6,8 +6,8 @@ use std::path::PathBuf;
 use harmap::run::stages::{
     freshness, options_in, report_in, stage_record, stale_stages, Freshness,
 };
-use harmap::trace::{SeedKind, TraceOptions};
 use harmap::run::RunDir;
+use harmap::trace::{SeedKind, TraceOptions};
 use harmap::voxelize::labels::NAMES;
 use harmap::voxelize::ProbeTrial;
 use serde_json::{json, Value};
@@ -268,16 +268,10 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
         writeln!(
             out,
             "sphere:   {} seeds within {} degrees of a seed more than {} voxels away",
-            v["collisions"]["seeds"],
-            v["collisions"]["angle_deg"],
-            v["collisions"]["far_voxels"],
+            v["collisions"]["seeds"], v["collisions"]["angle_deg"], v["collisions"]["far_voxels"],
         )?;
         if let Some(m) = v.get("surface").filter(|m| !m.is_null()) {
-            let q = |k: &str, f: &str| {
-                m[k][f]
-                    .as_f64()
-                    .unwrap_or(f64::NAN)
-            };
+            let q = |k: &str, f: &str| m[k][f].as_f64().unwrap_or(f64::NAN);
             writeln!(
                 out,
                 "surface:  {} of {} triangles flipped ({} degenerate); log area ratio p05/p50/p95 {:.2}/{:.2}/{:.2}; conformal distortion p50/p95 {:.2}/{:.2}",

@@ -202,9 +202,7 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
 /// This process's command line, with `--resume` (`resume`) or without it, quoted for
 /// a POSIX shell.
 fn continue_command(resume: bool) -> String {
-    let mut args: Vec<String> = std::env::args()
-        .filter(|a| a != "--resume")
-        .collect();
+    let mut args: Vec<String> = std::env::args().filter(|a| a != "--resume").collect();
     if resume {
         args.push("--resume".into());
     }

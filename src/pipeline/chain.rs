@@ -35,7 +35,9 @@ pub fn run(
     let stopped = |stage: &'static str| PipelineError::Interrupted {
         run: out.clone(),
         stage,
-        signal: progress.interrupt().map_or(0, crate::progress::Interrupt::signal),
+        signal: progress
+            .interrupt()
+            .map_or(0, crate::progress::Interrupt::signal),
     };
     // A stage's error when the interrupt is set is the interruption, whatever the
     // stage made of it.
@@ -100,7 +102,9 @@ pub fn run(
             let r = r.map_err(|e| fail("solve", e))?;
             let resumed = r.resumed_at.is_some();
             report.solve = Some((r, t.elapsed().as_secs_f64()));
-            report.stages.push(("solve", StageRun::Ran { again, resumed }));
+            report
+                .stages
+                .push(("solve", StageRun::Ran { again, resumed }));
         }
     }
 
@@ -114,8 +118,8 @@ pub fn run(
             }
             check_stop_radius(&a, opts.trace.stop_radius)?;
             let t = Instant::now();
-            let r = crate::trace::trace(&run, &opts.trace, progress)
-                .map_err(|e| fail("trace", e))?;
+            let r =
+                crate::trace::trace(&run, &opts.trace, progress).map_err(|e| fail("trace", e))?;
             report.trace = Some((r, t.elapsed().as_secs_f64()));
             report.stages.push(("trace", ran(again)));
         }
@@ -125,8 +129,7 @@ pub fn run(
     let a = attrs(&run)?;
     let mut map_opts = opts.map.clone();
     if map_opts.stop_radius.is_none() {
-        map_opts.stop_radius =
-            options_in::<TraceOptions>(&a, "trace").and_then(|t| t.stop_radius);
+        map_opts.stop_radius = options_in::<TraceOptions>(&a, "trace").and_then(|t| t.stop_radius);
     }
     match decide(&a, "map", &map_opts, run.root().join("theta").exists()) {
         None => report.stages.push(("map", StageRun::Skipped)),

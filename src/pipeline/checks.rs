@@ -80,8 +80,15 @@ mod tests {
             ..ok.clone()
         })
         .unwrap_err();
-        assert!(e.is_bad_input() && e.to_string().contains("--max-iter 0"), "{e}");
-        assert!(check_solve(&SolveOptions { tol: f64::NAN, ..ok }).is_err());
+        assert!(
+            e.is_bad_input() && e.to_string().contains("--max-iter 0"),
+            "{e}"
+        );
+        assert!(check_solve(&SolveOptions {
+            tol: f64::NAN,
+            ..ok
+        })
+        .is_err());
     }
 
     #[test]
@@ -91,7 +98,10 @@ mod tests {
         assert!(check_stop_radius(&attrs, None).is_ok());
         assert!(check_stop_radius(&attrs, Some(3.0)).is_ok());
         let e = check_stop_radius(&attrs, Some(1000.0)).unwrap_err();
-        assert!(e.is_bad_input() && e.to_string().contains("20.6 voxels deep"), "{e}");
+        assert!(
+            e.is_bad_input() && e.to_string().contains("20.6 voxels deep"),
+            "{e}"
+        );
         assert!(check_stop_radius(&attrs, Some(20.6)).is_err());
         assert!(check_stop_radius(&attrs, Some(-1.0)).is_err());
         assert!(check_stop_radius(&attrs, Some(f64::NAN)).is_err());

@@ -14,16 +14,16 @@
 mod atomic;
 mod dir;
 mod ome;
-mod staging;
 pub mod stages;
+mod staging;
 
 use std::path::{Path, PathBuf};
 
 pub use atomic::write_atomic;
 pub use dir::RunDir;
 pub use ome::ome_multiscales;
-pub use staging::{staging_path, RunLock, Staging};
 pub use stages::{stage_done, Freshness, StageRecord, STAGES};
+pub use staging::{staging_path, RunLock, Staging};
 
 /// Version of the on-disk layout this build writes and reads.
 pub const FORMAT_VERSION: u64 = 1;

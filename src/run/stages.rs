@@ -152,9 +152,7 @@ pub fn freshness(attrs: &Value, stage: &str) -> Freshness {
         }
         if let Some(recorded) = rec.inputs.get(*d) {
             if stage_digest(attrs, d).as_ref() != Some(recorded) {
-                return Freshness::Stale(format!(
-                    "{d} was run again with other options after it"
-                ));
+                return Freshness::Stale(format!("{d} was run again with other options after it"));
             }
         }
     }
@@ -275,9 +273,7 @@ mod tests {
     #[test]
     fn a_changed_input_makes_the_stages_after_it_stale() {
         let mut a = run_with(json!({"voxelize": {"status": "done", "options": {"r": 1}}}));
-        let solve = |a: &Value, rtol: f64| {
-            json!({"status": "done", "options": {"rtol": rtol}, "inputs": input_digests(a, "solve")})
-        };
+        let solve = |a: &Value, rtol: f64| json!({"status": "done", "options": {"rtol": rtol}, "inputs": input_digests(a, "solve")});
         a["stages"]["solve"] = solve(&a, 1e-6);
         a["stages"]["trace"] =
             json!({"status": "done", "options": {}, "inputs": input_digests(&a, "trace")});
@@ -300,7 +296,9 @@ mod tests {
         // The voxelization's input file changed: everything after it is stale.
         a["input"]["sha256"] = json!("cd");
         assert!(matches!(freshness(&a, "solve"), Freshness::Stale(_)));
-        assert!(matches!(freshness(&a, "trace"), Freshness::Stale(w) if w.contains("solve is out of date")));
+        assert!(
+            matches!(freshness(&a, "trace"), Freshness::Stale(w) if w.contains("solve is out of date"))
+        );
     }
 
     /// Records of older versions (no inputs) are never stale; a typed report reads the

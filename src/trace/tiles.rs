@@ -414,7 +414,15 @@ pub fn trace_tiled(
                 let results = v
                     .par_chunks(512)
                     .with_max_len(1)
-                    .map(|slice| advance_slice(slice, &tile, lo, hi, rk, ball, record_paths))
+                    .map(|slice| {
+                        // Stopping: the lines go back to wait unchanged, and the next
+                        // round's check ends the trace (a slice is a fraction of a second).
+                        if progress.interrupted() {
+                            let back = slice.iter().map(|l| (*l, Vec::new())).collect();
+                            return (Vec::new(), back);
+                        }
+                        advance_slice(slice, &tile, lo, hi, rk, ball, record_paths)
+                    })
                     .collect();
                 Ok((new.then_some((k, tile)), results))
             })
