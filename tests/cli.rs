@@ -360,7 +360,8 @@ fn run_reuses_only_a_matching_voxelization() {
     ]);
     assert_eq!(other.status.code(), Some(2));
     assert!(
-        stderr(&other).contains("another set of options") && stderr(&other).contains("--force"),
+        stderr(&other).contains("other voxelization options (resolution 8 -> 10)")
+            && stderr(&other).contains("--force"),
         "{}",
         stderr(&other)
     );
@@ -517,4 +518,422 @@ fn info_json(run: &Path) -> serde_json::Value {
     let o = harmap(&["info", run.to_str().unwrap(), "--json"]);
     assert!(o.status.success(), "{}", stderr(&o));
     serde_json::from_slice(&o.stdout).unwrap()
+}
+
+/// `harmap run --help` lists every flag of the stages it runs.
+#[test]
+fn run_takes_every_stage_flag() {
+    let o = harmap(&["run", "--help"]);
+    assert!(o.status.success());
+    let help = String::from_utf8_lossy(&o.stdout);
+    for flag in [
+        // voxelize
+        "--resolution",
+        "--spacing",
+        "--padding",
+        "--center",
+        "--center-radius",
+        "--allow-genus",
+        "--keep-largest",
+        "--close",
+        "--chunk",
+        "--mem",
+        "--surface",
+        "--probe",
+        // solve
+        "--method",
+        "--rtol",
+        "--tol",
+        "--eps",
+        "--max-iter",
+        "--omega",
+        "--checkpoint-every",
+        // trace
+        "--seeds",
+        "--sample",
+        "--stop-radius",
+        "--tile",
+        "--atol",
+        "--trace-rtol",
+        "--h-min",
+        "--h-max",
+        "--max-steps",
+        "--level-step",
+        // map
+        "--exact",
+    ] {
+        assert!(
+            help.contains(&format!("{flag} ")) || help.contains(&format!("{flag}\n")),
+            "`harmap run --help` lacks {flag}"
+        );
+    }
+    for heading in ["Voxelize:", "Solve:", "Trace:", "Integrator:", "Map:"] {
+        assert!(help.contains(heading), "no {heading} heading");
+    }
+}
+
+/// A small sphere run, for the tests below: (tempdir, shape, run).
+fn sphere_run(extra: &[&str]) -> (tempfile::TempDir, PathBuf, PathBuf) {
+    let d = tempfile::tempdir().unwrap();
+    let shape = d.path().join("s.obj");
+    write_obj(&shape, &sphere(Vec3::ZERO, 1.0, 12, 24));
+    let out = d.path().join("s.harmap");
+    let mut args = vec![
+        "--progress",
+        "never",
+        "run",
+        shape.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--resolution",
+        "20",
+    ];
+    args.extend_from_slice(extra);
+    let o = harmap(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    (d, shape, out)
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// `harmap run` again with other solve, trace or map options runs the stages they
+/// affect again and says why, instead of skipping them as done.
+#[test]
+fn run_with_changed_options_runs_the_affected_stages_again() {
+    let (_d, shape, out) = sphere_run(&[]);
+    let (s, o) = (shape.to_str().unwrap(), out.to_str().unwrap());
+    let run = |extra: &[&str]| {
+        let mut a = vec![
+            "--progress",
+            "never",
+            "run",
+            s,
+            "-o",
+            o,
+            "--resolution",
+            "20",
+        ];
+        a.extend_from_slice(extra);
+        let r = harmap(&a);
+        assert!(r.status.success(), "{extra:?}: {}", stderr(&r));
+        stdout(&r)
+    };
+    let text = run(&["--method", "sor"]);
+    assert!(
+        text.contains("solve: run again: its options changed: method"),
+        "{text}"
+    );
+    assert!(text.contains("trace: run again: out of date"), "{text}");
+    assert!(text.contains("map: run again: out of date"), "{text}");
+    assert!(!text.contains("solve: already done"), "{text}");
+    // Back to the default solve: the solve runs again; then only the trace options.
+    run(&[]);
+    let text = run(&["--seeds", "boundary"]);
+    assert!(text.contains("solve: already done"), "{text}");
+    assert!(
+        text.contains("trace: run again: its options changed:")
+            && text.contains("seeds \"surface\" -> \"boundary\""),
+        "{text}"
+    );
+    let text = run(&["--seeds", "boundary", "--stop-radius", "3"]);
+    assert!(
+        text.contains("trace: run again: its options changed: stop_radius"),
+        "{text}"
+    );
+    assert!(
+        text.contains("map: run again: its options changed: stop_radius"),
+        "{text}"
+    );
+    let text = run(&["--seeds", "boundary", "--stop-radius", "3", "--exact"]);
+    assert!(text.contains("trace: already done"), "{text}");
+    assert!(
+        text.contains("map: run again: its options changed: method"),
+        "{text}"
+    );
+    let text = run(&["--seeds", "boundary", "--stop-radius", "3", "--exact"]);
+    for stage in ["voxelize", "solve", "trace", "map"] {
+        assert!(text.contains(&format!("{stage}: already done")), "{text}");
+    }
+}
+
+/// `harmap solve RUN --rtol ...` after a run: `info` shows the trace and the map
+/// stale, an export of the seeds is refused with the command to run, and `harmap run`
+/// with those options runs them again.
+#[test]
+fn a_new_solve_makes_later_stages_stale_in_info() {
+    let (d, _shape, out) = sphere_run(&[]);
+    let o = out.to_str().unwrap();
+    assert!(
+        harmap(&["--progress", "never", "solve", o, "--rtol", "1e-3"])
+            .status
+            .success()
+    );
+    let info = stdout(&harmap(&["info", o]));
+    assert!(
+        info.contains("stage:    trace done") && info.contains("STALE"),
+        "{info}"
+    );
+    assert_eq!(info.matches("STALE").count(), 2, "{info}");
+    let json = info_json(&out);
+    let stale = json.pointer("/summary/stale").unwrap().as_object().unwrap();
+    assert!(
+        stale.contains_key("trace") && stale.contains_key("map"),
+        "{json}"
+    );
+    let csv = d.path().join("seeds.csv");
+    let e = harmap(&["export", o, "--format", "csv", "-o", csv.to_str().unwrap()]);
+    assert_eq!(e.status.code(), Some(2), "{}", stderr(&e));
+    assert!(
+        stderr(&e).contains("out of date") && stderr(&e).contains("harmap trace"),
+        "{}",
+        stderr(&e)
+    );
+    assert!(!csv.exists());
+}
+
+/// Values that would run and mean nothing are refused with exit code 2 and a message
+/// naming the flag, before anything is written.
+#[test]
+fn meaningless_flags_are_refused() {
+    let (d, shape, out) = sphere_run(&[]);
+    let o = out.to_str().unwrap();
+    for bad in [
+        &["--rtol", "2"][..],
+        &["--rtol", "inf"],
+        &["--rtol", "NaN"],
+        &["--rtol", "1"],
+        &["--max-iter", "0"],
+    ] {
+        let mut a = vec!["solve", o];
+        a.extend_from_slice(bad);
+        let r = harmap(&a);
+        assert_eq!(r.status.code(), Some(2), "{bad:?}: {}", stderr(&r));
+        assert!(stderr(&r).contains(bad[0]), "{bad:?}: {}", stderr(&r));
+        // The same through `harmap run`, into a new run: nothing is created.
+        let fresh = d.path().join("new.harmap");
+        let mut a = vec![
+            "run",
+            shape.to_str().unwrap(),
+            "-o",
+            fresh.to_str().unwrap(),
+        ];
+        a.extend_from_slice(bad);
+        let r = harmap(&a);
+        assert_eq!(r.status.code(), Some(2), "run {bad:?}: {}", stderr(&r));
+        assert!(!fresh.exists());
+    }
+    let r = harmap(&["trace", o, "--stop-radius", "1000"]);
+    assert_eq!(r.status.code(), Some(2), "{}", stderr(&r));
+    assert!(stderr(&r).contains("voxels deep"), "{}", stderr(&r));
+    let info = info_json(&out);
+    assert!(info
+        .pointer("/summary/stale")
+        .unwrap()
+        .as_object()
+        .unwrap()
+        .is_empty());
+}
+
+/// `solve --resume` with no checkpoint says to run without --resume.
+#[test]
+fn resume_without_a_checkpoint_says_what_to_do() {
+    let d = tempfile::tempdir().unwrap();
+    let cube = file(d.path(), "cube.obj", cube_obj().as_bytes());
+    let out = d.path().join("c.harmap");
+    let o = out.to_str().unwrap();
+    assert!(harmap(&[
+        "voxelize",
+        cube.to_str().unwrap(),
+        "-o",
+        o,
+        "--resolution",
+        "8",
+        "--center-radius",
+        "0"
+    ])
+    .status
+    .success());
+    let r = harmap(&["solve", o, "--resume"]);
+    assert_eq!(r.status.code(), Some(2), "{}", stderr(&r));
+    assert!(stderr(&r).contains("without --resume"), "{}", stderr(&r));
+}
+
+/// Spawn harmap with `args`, with stderr read line by line on a thread; returns the
+/// child and a receiver of the lines.
+fn spawn(args: &[&str]) -> (std::process::Child, std::sync::mpsc::Receiver<String>) {
+    use std::io::BufRead;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_harmap"))
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let err = child.stderr.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(err).lines() {
+            let Ok(line) = line else { break };
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    (child, rx)
+}
+
+/// The command between the last pair of backticks of `text`, split on spaces (the
+/// paths of these tests have none).
+fn command_in(text: &str) -> Vec<String> {
+    let end = text.rfind('`').expect("a command in backticks");
+    let start = text[..end].rfind('`').expect("a command in backticks");
+    text[start + 1..end].split(' ').map(str::to_owned).collect()
+}
+
+/// SIGINT and SIGTERM during the trace of `harmap run`: it stops within a second,
+/// exits 130 or 143, and prints the command that continues; that command finishes the
+/// run without solving again.
+#[test]
+fn a_signal_during_the_trace_of_run_stops_it_and_the_printed_command_continues() {
+    for (signal, code) in [("-INT", 130), ("-TERM", 143)] {
+        let d = tempfile::tempdir().unwrap();
+        let shape = d.path().join("s.obj");
+        write_obj(&shape, &sphere(Vec3::ZERO, 1.0, 16, 32));
+        let out = d.path().join("s.harmap");
+        // A trace of some seconds: every boundary voxel of a sphere 64 voxels across,
+        // at a tight tolerance.
+        let args = [
+            "-v",
+            "--progress",
+            "never",
+            "run",
+            shape.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--resolution",
+            "64",
+            "--seeds",
+            "boundary",
+            "--atol",
+            "1e-10",
+            "--rtol",
+            "1e-7",
+        ];
+        let (mut child, lines) = spawn(&args);
+        let mut text = String::new();
+        loop {
+            let line = lines
+                .recv_timeout(std::time::Duration::from_secs(120))
+                .expect("the trace started");
+            text.push_str(&line);
+            text.push('\n');
+            if line.starts_with("trace") {
+                break;
+            }
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+        let t = std::time::Instant::now();
+        let k = Command::new("kill")
+            .args([signal, &child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(k.success());
+        let status = child.wait().unwrap();
+        let took = t.elapsed();
+        while let Ok(line) = lines.recv_timeout(std::time::Duration::from_secs(5)) {
+            text.push_str(&line);
+            text.push('\n');
+        }
+        assert_eq!(status.code(), Some(code), "{signal}: {text}");
+        assert!(took.as_secs_f64() < 1.0, "{signal}: stopped after {took:?}");
+        assert!(text.contains("stopped during the trace stage"), "{text}");
+        let attrs = RunDir::open(&out).unwrap().attrs().unwrap();
+        assert!(harmap::run::stage_done(&attrs, "solve"));
+        assert!(!harmap::run::stage_done(&attrs, "trace"));
+        // The printed command keeps the options (the solve is not redone) and
+        // finishes the run.
+        let cmd = command_in(&text);
+        assert!(
+            cmd.windows(2).any(|w| w[0] == "--rtol" && w[1] == "1e-7"),
+            "{cmd:?}"
+        );
+        let again: Vec<&str> = cmd[1..].iter().map(String::as_str).collect();
+        let r = harmap(&again);
+        assert!(r.status.success(), "{}", stderr(&r));
+        let o = stdout(&r);
+        assert!(o.contains("solve: already done"), "{o}");
+        let attrs = RunDir::open(&out).unwrap().attrs().unwrap();
+        for stage in ["trace", "map"] {
+            assert!(
+                harmap::run::stage_done(&attrs, stage),
+                "{stage} not done: {o}"
+            );
+        }
+    }
+}
+
+/// An interrupted `harmap solve` with other than default options prints the command
+/// that continues it with those options, and that command resumes.
+#[test]
+fn an_interrupted_solve_prints_a_resume_command_that_works() {
+    let d = tempfile::tempdir().unwrap();
+    let shape = d.path().join("s.obj");
+    write_obj(&shape, &sphere(Vec3::ZERO, 1.0, 16, 32));
+    let out = d.path().join("s.harmap");
+    let o = out.to_str().unwrap();
+    assert!(harmap(&[
+        "voxelize",
+        shape.to_str().unwrap(),
+        "-o",
+        o,
+        "--resolution",
+        "24"
+    ])
+    .status
+    .success());
+    let args = [
+        "--progress",
+        "never",
+        "solve",
+        o,
+        "--method",
+        "jacobi",
+        "--rtol",
+        "1e-7",
+        "--max-iter",
+        "100000",
+        "--checkpoint-every",
+        "0.02s",
+    ];
+    let (mut child, lines) = spawn(&args);
+    let manifest = out.join("solve/manifest.json");
+    let t = std::time::Instant::now();
+    while !manifest.exists() {
+        assert!(t.elapsed().as_secs() < 60, "no checkpoint appeared");
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    let k = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(k.success());
+    let status = child.wait().unwrap();
+    let mut text = String::new();
+    while let Ok(line) = lines.recv_timeout(std::time::Duration::from_secs(5)) {
+        text.push_str(&line);
+        text.push('\n');
+    }
+    assert_eq!(status.code(), Some(130), "{text}");
+    let cmd = command_in(&text);
+    for a in ["jacobi", "1e-7", "--resume"] {
+        assert!(cmd.iter().any(|c| c == a), "{a} missing from {cmd:?}");
+    }
+    let again: Vec<&str> = cmd[1..].iter().map(String::as_str).collect();
+    let r = harmap(&again);
+    assert!(r.status.success(), "{}", stderr(&r));
+    let attrs = RunDir::open(&out).unwrap().attrs().unwrap();
+    let resumed: Option<u64> = harmap::run::stages::report_in::<serde_json::Value>(&attrs, "solve")
+        .and_then(|v| v.get("resumed_at").and_then(serde_json::Value::as_u64));
+    assert!(resumed.is_some_and(|n| n > 0), "the solve did not resume");
 }

@@ -6,6 +6,7 @@ mod interop;
 mod map;
 mod meshes;
 mod molecules;
+mod pipeline;
 mod reliability;
 mod solve;
 mod topology;

@@ -3,7 +3,11 @@
 use std::io::Write;
 use std::path::PathBuf;
 
+use harmap::run::stages::{
+    freshness, options_in, report_in, stage_record, stale_stages, Freshness,
+};
 use harmap::run::RunDir;
+use harmap::trace::{SeedKind, TraceOptions};
 use harmap::voxelize::labels::NAMES;
 use harmap::voxelize::ProbeTrial;
 use serde_json::{json, Value};
@@ -33,8 +37,12 @@ fn boundary_line(out: &mut impl Write, label: &str, result: &Value) -> std::io::
 }
 
 fn summary(attrs: &Value) -> Value {
-    let mut s = json!({});
-    if let Some(v) = attrs.pointer("/stages/voxelize/result") {
+    let stale: serde_json::Map<String, Value> = stale_stages(attrs)
+        .into_iter()
+        .map(|(stage, why)| (stage.to_owned(), json!(why)))
+        .collect();
+    let mut s = json!({ "stale": stale });
+    if let Some(v) = report_in::<Value>(attrs, "voxelize") {
         let counts: Vec<u64> = v["counts"]
             .as_array()
             .map(|a| a.iter().filter_map(Value::as_u64).collect())
@@ -45,8 +53,8 @@ fn summary(attrs: &Value) -> Value {
             .map(|(n, c)| ((*n).to_owned(), json!(c)))
             .collect();
         s["voxelize"] = json!({
-            "status": attrs.pointer("/stages/voxelize/status"),
-            "seconds": attrs.pointer("/stages/voxelize/seconds"),
+            "status": stage_record(attrs, "voxelize").map(|r| r.status),
+            "seconds": stage_record(attrs, "voxelize").map(|r| r.seconds),
             "labels": by_name,
             "euler_characteristic": v["euler_characteristic"],
             "genus": v["genus"],
@@ -59,10 +67,10 @@ fn summary(attrs: &Value) -> Value {
             "inside_rule": v["inside_rule"],
         });
     }
-    if let Some(v) = attrs.pointer("/stages/solve/result") {
+    if let Some(v) = report_in::<Value>(attrs, "solve") {
         s["solve"] = json!({
-            "status": attrs.pointer("/stages/solve/status"),
-            "seconds": attrs.pointer("/stages/solve/seconds"),
+            "status": stage_record(attrs, "solve").map(|r| r.status),
+            "seconds": stage_record(attrs, "solve").map(|r| r.seconds),
             "method": v["method"],
             "iterations": v["iterations"],
             "stopped_by": v["stopped_by"],
@@ -73,10 +81,10 @@ fn summary(attrs: &Value) -> Value {
             "resumed_at": v["resumed_at"],
         });
     }
-    if let Some(v) = attrs.pointer("/stages/trace/result") {
+    if let Some(v) = report_in::<Value>(attrs, "trace") {
         s["trace"] = json!({
-            "status": attrs.pointer("/stages/trace/status"),
-            "seconds": attrs.pointer("/stages/trace/seconds"),
+            "status": stage_record(attrs, "trace").map(|r| r.status),
+            "seconds": stage_record(attrs, "trace").map(|r| r.seconds),
             "seeds": v["seeds"],
             "stops": v["stops"],
             "reached_fraction": v["reached_fraction"],
@@ -132,16 +140,15 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
         )?;
     }
     if let (Some(c), Some(v)) = (attrs.get("center"), attrs.get("center_voxel")) {
-        let depth = attrs
-            .pointer("/stages/voxelize/result/center_depth")
-            .and_then(Value::as_f64)
+        let depth = report_in::<Value>(&attrs, "voxelize")
+            .and_then(|v| v["center_depth"].as_f64())
             .unwrap_or(f64::NAN);
         writeln!(
             out,
             "center:   {c} = voxel {v} [z, y, x], {depth:.1} voxels deep"
         )?;
     }
-    if let Some(v) = attrs.pointer("/stages/voxelize/result") {
+    if let Some(v) = report_in::<Value>(&attrs, "voxelize") {
         write!(out, "labels:  ")?;
         if let Some(counts) = v["counts"].as_array() {
             for (n, c) in NAMES.iter().zip(counts) {
@@ -194,7 +201,8 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
     if let Some(stages) = attrs.get("stages").and_then(Value::as_object) {
         for (name, st) in stages {
             let timings = st
-                .pointer("/result/timings")
+                .get("result")
+                .and_then(|r| r.get("timings"))
                 .and_then(Value::as_array)
                 .map(|t| {
                     t.iter()
@@ -202,16 +210,20 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
                         .collect::<Vec<_>>()
                         .join(", ")
                 });
+            let stale = match freshness(&attrs, name) {
+                Freshness::Stale(why) => format!(", STALE: {why}; run `harmap {name}` again"),
+                _ => String::new(),
+            };
             writeln!(
                 out,
-                "stage:    {name} {} in {:.2}s{}",
+                "stage:    {name} {} in {:.2}s{}{stale}",
                 st["status"].as_str().unwrap_or("?"),
                 st["seconds"].as_f64().unwrap_or(f64::NAN),
                 timings.map(|t| format!(" ({t})")).unwrap_or_default()
             )?;
         }
     }
-    if let Some(v) = attrs.pointer("/stages/solve/result") {
+    if let Some(v) = report_in::<Value>(&attrs, "solve") {
         let hist: Vec<String> = v["residual_history"]
             .as_array()
             .map(|a| {
@@ -233,7 +245,7 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
         )?;
         writeln!(out, "residual: {}", hist.join(" "))?;
     }
-    if let Some(v) = attrs.pointer("/stages/trace/result") {
+    if let Some(v) = report_in::<Value>(&attrs, "trace") {
         let stops: Vec<String> = v["stops"]
             .as_object()
             .map(|m| m.iter().map(|(k, n)| format!("{k} {n}")).collect())
@@ -242,29 +254,24 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
             out,
             "trace:    {} seeds ({}), {:.3}% reached the center; {}; {:.1} steps per line, stop radius {} voxels",
             v["seeds"],
-            attrs
-                .pointer("/stages/trace/options/seeds")
-                .and_then(Value::as_str)
-                .unwrap_or("?"),
+            options_in::<TraceOptions>(&attrs, "trace")
+                .map_or("?", |o| match o.seeds {
+                    SeedKind::Boundary => "boundary",
+                    SeedKind::Surface => "surface",
+                }),
             100.0 * v["reached_fraction"].as_f64().unwrap_or(f64::NAN),
             stops.join(", "),
             v["mean_steps"].as_f64().unwrap_or(f64::NAN),
             v["stop_radius"]
         )?;
-        boundary_line(&mut out, "field:   ", v)?;
+        boundary_line(&mut out, "field:   ", &v)?;
         writeln!(
             out,
             "sphere:   {} seeds within {} degrees of a seed more than {} voxels away",
-            v.pointer("/collisions/seeds").unwrap_or(&Value::Null),
-            v.pointer("/collisions/angle_deg").unwrap_or(&Value::Null),
-            v.pointer("/collisions/far_voxels").unwrap_or(&Value::Null),
+            v["collisions"]["seeds"], v["collisions"]["angle_deg"], v["collisions"]["far_voxels"],
         )?;
         if let Some(m) = v.get("surface").filter(|m| !m.is_null()) {
-            let q = |k: &str, f: &str| {
-                m.pointer(&format!("/{k}/{f}"))
-                    .and_then(Value::as_f64)
-                    .unwrap_or(f64::NAN)
-            };
+            let q = |k: &str, f: &str| m[k][f].as_f64().unwrap_or(f64::NAN);
             writeln!(
                 out,
                 "surface:  {} of {} triangles flipped ({} degenerate); log area ratio p05/p50/p95 {:.2}/{:.2}/{:.2}; conformal distortion p50/p95 {:.2}/{:.2}",
@@ -279,7 +286,7 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
             )?;
         }
     }
-    if let Some(v) = attrs.pointer("/stages/map/result") {
+    if let Some(v) = report_in::<Value>(&attrs, "map") {
         write!(
             out,
             "map:      {} of {} voxels have (theta, psi) ({}",
@@ -299,7 +306,7 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
             write!(out, ": {}", s.join(", "))?;
         }
         writeln!(out, "), stop radius {} voxels", v["stop_radius"])?;
-        boundary_line(&mut out, "map field:", v)?;
+        boundary_line(&mut out, "map field:", &v)?;
     }
     Ok(())
 }

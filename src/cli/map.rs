@@ -34,23 +34,24 @@ pub struct Args {
     pub run: PathBuf,
     #[command(flatten)]
     pub opts: MapArgs,
+    /// Memory budget: peak resident memory (e.g. 256MiB, 2GiB).
+    #[arg(long, value_name = "SIZE", default_value_t = MemBudget::default())]
+    pub mem: MemBudget,
 }
 
-/// Map flags, shared with `harmap run`.
+/// Map flags, shared with `harmap run` (which flattens them under "Map").
 #[derive(clap::Args, Debug, Clone)]
+#[command(next_help_heading = "Map")]
 pub struct MapArgs {
     /// Trace a streamline from every voxel instead of the upwind transport.
     #[arg(long)]
     pub exact: bool,
-    /// Memory budget: peak resident memory (e.g. 256MiB, 2GiB).
-    #[arg(long, value_name = "SIZE", default_value = "1GiB")]
-    pub mem: MemBudget,
 }
 
 impl MapArgs {
-    /// The library options; the stop ball is the trace's.
+    /// The library options; the stop ball is the trace's, the budget `mem`.
     #[must_use]
-    pub fn options(&self, stop_radius: Option<f64>) -> MapOptions {
+    pub fn options(&self, stop_radius: Option<f64>, mem: MemBudget) -> MapOptions {
         MapOptions {
             method: if self.exact {
                 MapMethod::Exact
@@ -58,7 +59,7 @@ impl MapArgs {
                 MapMethod::Upwind
             },
             stop_radius,
-            mem: self.mem,
+            mem,
         }
     }
 }
@@ -88,11 +89,11 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     let run = RunDir::open(&a.run).map_err(harmap::Error::from)?;
     // The trace's stop ball, when the run was traced with one.
     let stop_radius = run.attrs().ok().and_then(|v| {
-        v.pointer("/stages/trace/options/stop_radius")
-            .and_then(serde_json::Value::as_f64)
+        harmap::run::stages::options_in::<harmap::trace::TraceOptions>(&v, "trace")
+            .and_then(|t| t.stop_radius)
     });
     let t = std::time::Instant::now();
-    let r = map(&run, &a.opts.options(stop_radius), &Bars::new(g))?;
+    let r = map(&run, &a.opts.options(stop_radius, a.mem), &Bars::new(g))?;
     g.say(&format!(
         "{}: {}; fields in {} and {}",
         a.run.display(),

@@ -146,6 +146,9 @@ fn exit_code(e: &anyhow::Error) -> u8 {
         if c.downcast_ref::<UsageError>().is_some() {
             return 2;
         }
+        if let Some(s) = c.downcast_ref::<run::Stopped>() {
+            return s.code;
+        }
         if let Some(h) = c.downcast_ref::<harmap::Error>() {
             if let harmap::Error::Solve(
                 harmap::solve::SolveError::Interrupted { .. }

@@ -4,6 +4,7 @@ use std::io::IsTerminal;
 use std::sync::Mutex;
 use std::time::Duration;
 
+use harmap::progress::Interrupt;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::{Global, ProgressMode};
@@ -13,6 +14,7 @@ pub struct Bars {
     bar: Mutex<Option<ProgressBar>>,
     draw: bool,
     verbosity: u8,
+    interrupt: Option<Interrupt>,
 }
 
 impl Bars {
@@ -28,8 +30,40 @@ impl Bars {
             bar: Mutex::new(None),
             draw,
             verbosity: g.verbosity,
+            interrupt: None,
         }
     }
+
+    /// Bars whose stages poll `interrupt` (set by [`catch_signals`]).
+    pub fn with_interrupt(g: &Global, interrupt: Interrupt) -> Self {
+        Self {
+            interrupt: Some(interrupt),
+            ..Self::new(g)
+        }
+    }
+}
+
+/// SIGINT and SIGTERM set the returned token (and record which came) instead of
+/// killing the process: the stages poll it and stop at the next iteration, block or
+/// tile. A second signal while the first is being handled ends the process at once
+/// with 128 + its number, for a stage that does not poll (the voxelization).
+pub fn catch_signals() -> anyhow::Result<Interrupt> {
+    let token = Interrupt::new();
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        // Registered first, so it sees the flag as the earlier signal left it.
+        signal_hook::flag::register_conditional_shutdown(
+            sig,
+            128 + sig,
+            std::sync::Arc::clone(token.flag()),
+        )?;
+        signal_hook::flag::register_usize(
+            sig,
+            std::sync::Arc::clone(token.signal_cell()),
+            sig as usize,
+        )?;
+        signal_hook::flag::register(sig, std::sync::Arc::clone(token.flag()))?;
+    }
+    Ok(token)
 }
 
 impl harmap::progress::Progress for Bars {
@@ -95,5 +129,9 @@ impl harmap::progress::Progress for Bars {
         if self.verbosity > 1 {
             eprintln!("{message}");
         }
+    }
+
+    fn interrupt(&self) -> Option<&Interrupt> {
+        self.interrupt.as_ref()
     }
 }

@@ -1,15 +1,17 @@
-//! `harmap run`: the whole pipeline in one command, as far as it is built.
+//! `harmap run`: the whole pipeline in one command. The pipeline is the library's
+//! [`harmap::pipeline::run`]; this parses the flags and prints.
 
 use std::path::PathBuf;
 
 use anyhow::Context;
 use harmap::input::InputOptions;
-use harmap::pipeline::{voxelize_new_run, Source};
-use harmap::run::RunDir;
+use harmap::pipeline::{PipelineError, PipelineOptions, PipelineReport, Source, StageRun};
+use harmap::trace::{Rk45, SeedKind};
 
-use super::progress::Bars;
-use super::solve::{MethodArg, SolveArgs};
-use super::trace::SeedArg;
+use super::map::MapArgs;
+use super::progress::{catch_signals, Bars};
+use super::solve::SolveArgs;
+use super::trace::TraceArgs;
 use super::voxelize::VoxelizeArgs;
 use super::{Global, UsageError};
 
@@ -20,13 +22,24 @@ use super::{Global, UsageError};
 /// boundary voxel instead), the full-volume map (theta and psi for every voxel, upwind)
 /// and the atlas picture (RUN's name with .atlas.png), then a summary.
 ///
+/// Every flag of `harmap voxelize`, `solve`, `trace` and `map` is taken here, with the
+/// same defaults (but --seeds: surface), once: --mem bounds every stage, and the
+/// trace's integrator tolerance is --trace-rtol (--rtol is the solve's).
+///
 /// With no INPUT, runs on the built-in five-armed starfish, centered at its middle.
-/// Stages already done in RUN are skipped, so a run that was stopped is finished by
-/// giving the same command again; --force starts over.
+///
+/// Stages already done in RUN with the same options are skipped, so a run that was
+/// stopped is finished by giving the same command again. A stage whose options
+/// changed runs again, and so does every stage after it that reads its output (the
+/// summary says which and why); other voxelization options or another input are
+/// refused: --force starts over. Ctrl-C or SIGTERM stops the run at the next
+/// iteration, block or tile (exit 130, or 143 for SIGTERM) and prints the command that
+/// continues it.
 ///
 /// Examples:
 ///   harmap run                                 # the built-in starfish -> starfish.harmap
 ///   harmap run spot.obj -o spot.harmap --resolution 96
+///   harmap run spot.obj -o spot.harmap --resolution 96 --rtol 1e-8   # solve, trace, map again
 #[derive(clap::Args, Debug)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
@@ -38,31 +51,54 @@ pub struct Args {
     /// Redo every stage, replacing RUN.
     #[arg(long)]
     pub force: bool,
+    #[command(flatten, next_help_heading = "Voxelize")]
+    pub voxelize: VoxelizeArgs,
     #[command(flatten)]
-    pub opts: VoxelizeArgs,
-    /// Solve: multigrid, sor or jacobi.
-    #[arg(long, value_enum, default_value_t = MethodArg::Multigrid, help_heading = "Solve")]
-    pub method: MethodArg,
-    /// Solve: stop at this relative residual.
-    #[arg(long, value_name = "R", default_value_t = 1e-6, help_heading = "Solve")]
-    pub rtol: f64,
-    /// Solve: iteration limit.
-    #[arg(long, value_name = "N", default_value_t = 1000, help_heading = "Solve")]
-    pub max_iter: u64,
-    /// Solve: time between checkpoints (90s, 10m; 0: only when interrupted).
-    #[arg(long, value_name = "DURATION", default_value = "5m", value_parser = super::solve::parse_duration, help_heading = "Solve")]
-    pub checkpoint_every: f64,
-    /// Trace and map: radius of the stop ball, voxels [default: as `harmap trace`].
-    #[arg(long, value_name = "VOXELS", help_heading = "Trace and map")]
-    pub stop_radius: Option<f64>,
-    /// Trace: seeds. Surface: the vertices of the input mesh, or for other inputs of the
-    /// labels' surface nets (the summary then has the bijectivity numbers); boundary:
-    /// every boundary voxel (fewer steps a line: faster on large grids).
-    #[arg(long, value_enum, default_value_t = SeedArg::Surface, help_heading = "Trace and map")]
-    pub seeds: SeedArg,
-    /// Map: trace from every voxel instead of the upwind transport.
-    #[arg(long, help_heading = "Trace and map")]
-    pub exact: bool,
+    pub solve: SolveArgs,
+    #[command(flatten)]
+    pub trace: TraceArgs,
+    /// The trace's --rtol: error allowed per voxel of step, on top of --atol.
+    #[arg(long, value_name = "FRACTION", default_value_t = Rk45::default().rtol, help_heading = "Integrator")]
+    pub trace_rtol: f64,
+    #[command(flatten)]
+    pub map: MapArgs,
+}
+
+/// A stage stopped by a signal: exit with `code`, after printing `message`.
+#[derive(Debug, thiserror::Error)]
+#[error("{message}")]
+pub struct Stopped {
+    /// The exit code: 128 + the signal's number (130 for SIGINT, 143 for SIGTERM).
+    pub code: u8,
+    /// What stopped and the command that continues.
+    pub message: String,
+}
+
+/// The exit code for a stop by signal `signal` (130 when it is not known).
+#[must_use]
+pub fn exit_code_of(signal: usize) -> u8 {
+    match signal {
+        1..=127 => 128 + signal as u8,
+        _ => 130,
+    }
+}
+
+/// `args` as one POSIX shell command line (arguments with spaces or quotes quoted).
+#[must_use]
+pub fn shell_words(args: &[String]) -> String {
+    args.iter()
+        .map(|a| {
+            let plain = !a.is_empty()
+                && a.chars()
+                    .all(|c| c.is_ascii_alphanumeric() || "-_./=,:+@%".contains(c));
+            if plain {
+                a.clone()
+            } else {
+                format!("'{}'", a.replace('\'', r"'\''"))
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// Run `harmap run`.
@@ -78,194 +114,133 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
                 });
         PathBuf::from(format!("{stem}.harmap"))
     });
-    let (mut opts, iopts): (_, InputOptions) = a.opts.options()?;
-    if a.input.is_none() && opts.center.is_none() {
+    let (mut vopts, iopts): (_, InputOptions) = a.voxelize.options()?;
+    if a.input.is_none() && vopts.center.is_none() {
         // The starfish is symmetric about the origin: its middle is the natural center
         // (the deepest voxel lies off-middle, toward an arm's root).
-        opts.center = Some([0.0, 0.0, 0.0]);
+        vopts.center = Some([0.0, 0.0, 0.0]);
     }
-    let bars = Bars::new(g);
-    let done = !a.force && voxelize_done(&out, a.input.as_deref(), &opts)?;
-    if done {
-        g.say(&format!(
-            "voxelize: already done in {} (skipped; --force redoes it)",
-            out.display()
-        ));
-    } else {
-        let source = a
-            .input
-            .as_ref()
-            .map_or(Source::Starfish, |p| Source::File(p, &iopts));
-        let (_, r) = voxelize_new_run(&source, &opts, &out, a.force, &bars)
-            .with_context(|| format!("voxelizing into {}", out.display()))?;
-        let s = r.grid.shape;
-        g.say(&format!(
-            "voxelize: {} x {} x {} voxels, {} solid, genus {}, center ({:.3}, {:.3}, {:.3}), {:.2}s",
-            s[2],
-            s[1],
-            s[0],
-            r.counts[1] + r.counts[2] + r.counts[3],
-            r.genus,
-            r.center[0],
-            r.center[1],
-            r.center[2],
-            r.timings.iter().map(|t| t.1).sum::<f64>()
-        ));
-        if let Some(p) = r.probe_summary() {
-            g.say(&format!("voxelize: {p}"));
-        }
-    }
-    let run = harmap::run::RunDir::open(&out).map_err(harmap::Error::from)?;
-    let attrs = run.attrs().map_err(harmap::Error::from)?;
-    if harmap::run::stage_done(&attrs, "solve") {
-        g.say("solve: already done (skipped; --force redoes every stage)");
-    } else {
-        // Continue an interrupted solve from its checkpoint when there is one.
-        let resume = out.join("solve/manifest.json").exists();
-        let opts = SolveArgs {
-            method: a.method,
-            rtol: a.rtol,
-            tol: 0.0,
-            eps: 1e-4,
-            max_iter: a.max_iter,
-            omega: None,
-            checkpoint_every: a.checkpoint_every,
-            mem: a.opts.mem,
-        }
-        .options(resume);
-        let stop = super::solve::stop_flag()?;
-        let t = std::time::Instant::now();
-        let r = harmap::solve::solve(&run, &opts, &stop, &Bars::new(g))?;
-        g.say(&format!(
-            "solve: {}",
-            super::solve::summary(&r, t.elapsed().as_secs_f64())
-        ));
-    }
-    let attrs = run.attrs().map_err(harmap::Error::from)?;
-    if harmap::run::stage_done(&attrs, "trace") && out.join("seeds").exists() {
-        g.say("trace: already done (skipped; --force redoes every stage)");
-    } else {
-        let seeds = a.seeds.kind();
-        let opts = harmap::trace::TraceOptions {
-            stop_radius: a.stop_radius,
-            mem: a.opts.mem,
-            ..harmap::trace::TraceOptions::for_seeds(seeds)
-        };
-        let t = std::time::Instant::now();
-        let r = harmap::trace::trace(&run, &opts, &Bars::new(g))?;
-        g.say(&format!(
-            "trace: {}",
-            super::trace::summary(&r, t.elapsed().as_secs_f64())
-        ));
-    }
-    let attrs = run.attrs().map_err(harmap::Error::from)?;
-    if harmap::run::stage_done(&attrs, "map") && out.join("theta").exists() {
-        g.say("map: already done (skipped; --force redoes every stage)");
-    } else {
-        let stop_radius = attrs
-            .pointer("/stages/trace/options/stop_radius")
-            .and_then(serde_json::Value::as_f64);
-        let opts = super::map::MapArgs {
-            exact: a.exact,
-            mem: a.opts.mem,
-        }
-        .options(stop_radius);
-        let t = std::time::Instant::now();
-        let r = harmap::map::map(&run, &opts, &Bars::new(g))?;
-        g.say(&format!(
-            "map: {}",
-            super::map::summary(&r, t.elapsed().as_secs_f64())
-        ));
-    }
-    let atlas = out.with_extension("atlas.png");
-    let attrs = run.attrs().map_err(harmap::Error::from)?;
-    let by = harmap::report::default_coloring(&attrs);
-    if let Err(e) = harmap::report::atlas(&run, &atlas, false, &by) {
-        // A molecule's residues color its atlas when they can be had; the axis does
-        // otherwise (a file without residue numbers, or moved since the voxelization).
-        if by == harmap::report::ColorBy::Axis || !e.is_bad_input() {
-            return Err(e.into());
-        }
-        eprintln!("warning: atlas colored by the main axis: {e}");
-        harmap::report::atlas(&run, &atlas, false, &harmap::report::ColorBy::Axis)?;
-    }
-    let attrs = run.attrs().map_err(harmap::Error::from)?;
-    let secs = |s: &str| {
-        attrs
-            .pointer(&format!("/stages/{s}/seconds"))
-            .and_then(serde_json::Value::as_f64)
-            .unwrap_or(f64::NAN)
+    let mem = a.voxelize.mem;
+    let opts = PipelineOptions {
+        out: out.clone(),
+        force: a.force,
+        voxelize: vopts,
+        solve: a.solve.options(false, mem),
+        trace: a.trace.options(SeedKind::Surface, a.trace_rtol, mem),
+        map: a.map.options(None, mem),
+        atlas: Some(out.with_extension("atlas.png")),
     };
-    let trace = attrs.pointer("/stages/trace/result");
-    let num = |p: &str| {
-        trace
-            .and_then(|t| t.pointer(p))
-            .cloned()
-            .unwrap_or_default()
+    let source = a
+        .input
+        .as_ref()
+        .map_or(Source::Starfish, |p| Source::File(p, &iopts));
+    let interrupt = catch_signals()?;
+    let bars = Bars::with_interrupt(g, interrupt.clone());
+    let report = match harmap::pipeline::run(&source, &opts, &bars) {
+        Ok(r) => r,
+        Err(PipelineError::Interrupted { run, stage, signal }) => {
+            // The same command continues (without --force, which would start over).
+            let args: Vec<String> = std::env::args().filter(|a| a != "--force").collect();
+            return Err(Stopped {
+                code: exit_code_of(signal),
+                message: format!(
+                    "{}: stopped during the {stage} stage; the finished stages are kept. Continue with `{}`",
+                    run.display(),
+                    shell_words(&args)
+                ),
+            }
+            .into());
+        }
+        Err(e @ PipelineError::OtherRun { .. }) => return Err(UsageError(e.to_string()).into()),
+        Err(PipelineError::Stage(e)) => {
+            return Err(anyhow::Error::from(e))
+                .with_context(|| format!("harmap run into {}", out.display()));
+        }
     };
-    let bijectivity = match trace
-        .and_then(|t| t.get("surface"))
-        .filter(|s| !s.is_null())
-    {
-        Some(_) => format!(
-            "{} of {} surface triangles flipped on the sphere, {} colliding seeds",
-            num("/surface/flipped"),
-            num("/surface/measured"),
-            num("/collisions/seeds")
-        ),
-        None => format!("{} colliding seeds", num("/collisions/seeds")),
-    };
-    let mapped = attrs
-        .pointer("/stages/map/result")
-        .map(|m| format!("{} of {} voxels", m["mapped"], m["voxels"]))
-        .unwrap_or_default();
-    g.say(&format!(
-        "{}: done. Seconds per stage: voxelize {:.2}, solve {:.2}, trace {:.2}, map {:.2}.\n  \
-         {:.3}% of the streamlines reached the center; {bijectivity}; {mapped} mapped.\n  \
-         fields: {0}/phi, {0}/theta, {0}/psi (Zarr); seed table: {0}/seeds; atlas: {}\n  \
-         `harmap info {0}` shows the numbers; `harmap export {0} --format nifti|vti|csv|...` exports.",
-        out.display(),
-        secs("voxelize"),
-        secs("solve"),
-        secs("trace"),
-        secs("map"),
-        100.0 * num("/reached_fraction").as_f64().unwrap_or(f64::NAN),
-        atlas.display(),
-    ));
+    print(&report, g);
     Ok(())
 }
 
-fn voxelize_done(
-    out: &std::path::Path,
-    input: Option<&std::path::Path>,
-    opts: &harmap::voxelize::VoxelizeOptions,
-) -> anyhow::Result<bool> {
-    let Some(attrs) = RunDir::open(out).ok().and_then(|r| r.attrs().ok()) else {
-        return Ok(false);
-    };
-    if !harmap::run::stage_done(&attrs, "voxelize") {
-        return Ok(false);
-    }
-    let same_input = match input {
-        None => attrs.pointer("/input/builtin").is_some(),
-        Some(p) => {
-            harmap::input::sha256_file(p).ok().as_deref()
-                == attrs.pointer("/input/sha256").and_then(|s| s.as_str())
+/// The lines of a finished run: each stage, then the summary.
+fn print(r: &PipelineReport, g: &Global) {
+    let out = r.run.display();
+    for (stage, how) in &r.stages {
+        match how {
+            StageRun::Skipped => g.say(&format!(
+                "{stage}: already done in {out} with these options (skipped; --force redoes every stage)"
+            )),
+            StageRun::Ran { again, resumed } => {
+                if let Some(why) = again {
+                    g.say(&format!("{stage}: run again: {why}"));
+                }
+                if *resumed {
+                    g.say(&format!("{stage}: continued from its checkpoint"));
+                }
+                g.say(&stage_line(r, stage));
+            }
         }
-    };
-    let same_opts =
-        attrs.pointer("/stages/voxelize/options") == serde_json::to_value(opts).ok().as_ref();
-    if same_input && same_opts {
-        return Ok(true);
     }
-    Err(UsageError(format!(
-        "{} holds a run of another {}; pass --force to redo it, or choose another -o",
-        out.display(),
-        if same_input {
-            "set of options"
-        } else {
-            "input"
-        }
-    ))
-    .into())
+    if let Some(w) = &r.atlas_fallback {
+        eprintln!("warning: atlas colored by the main axis: {w}");
+    }
+    let s = &r.summary;
+    let bijectivity = match s.flipped {
+        Some((flipped, measured)) => format!(
+            "{flipped} of {measured} surface triangles flipped on the sphere, {} colliding seeds",
+            s.colliding_seeds
+        ),
+        None => format!("{} colliding seeds", s.colliding_seeds),
+    };
+    let atlas = r
+        .atlas
+        .as_ref()
+        .map_or_else(|| "none".to_owned(), |p| p.display().to_string());
+    g.say(&format!(
+        "{out}: done. Seconds per stage: voxelize {:.2}, solve {:.2}, trace {:.2}, map {:.2}.\n  \
+         {:.3}% of the streamlines reached the center; {bijectivity}; {} of {} voxels mapped.\n  \
+         fields: {out}/phi, {out}/theta, {out}/psi (Zarr); seed table: {out}/seeds; atlas: {atlas}\n  \
+         `harmap info {out}` shows the numbers; `harmap export {out} --format nifti|vti|csv|...` exports.",
+        s.seconds[0],
+        s.seconds[1],
+        s.seconds[2],
+        s.seconds[3],
+        100.0 * s.reached_fraction,
+        s.mapped.0,
+        s.mapped.1,
+    ));
+}
+
+/// The line of a stage that ran now.
+fn stage_line(r: &PipelineReport, stage: &str) -> String {
+    match stage {
+        "voxelize" => r.voxelize.as_ref().map_or_else(String::new, |v| {
+            let s = v.grid.shape;
+            let mut line = format!(
+                "voxelize: {} x {} x {} voxels, {} solid, genus {}, center ({:.3}, {:.3}, {:.3}), {:.2}s",
+                s[2],
+                s[1],
+                s[0],
+                v.counts[1] + v.counts[2] + v.counts[3],
+                v.genus,
+                v.center[0],
+                v.center[1],
+                v.center[2],
+                v.timings.iter().map(|t| t.1).sum::<f64>()
+            );
+            if let Some(p) = v.probe_summary() {
+                line.push_str(&format!("\nvoxelize: {p}"));
+            }
+            line
+        }),
+        "solve" => r.solve.as_ref().map_or_else(String::new, |(s, t)| {
+            format!("solve: {}", super::solve::summary(s, *t))
+        }),
+        "trace" => r.trace.as_ref().map_or_else(String::new, |(s, t)| {
+            format!("trace: {}", super::trace::summary(s, *t))
+        }),
+        "map" => r.map.as_ref().map_or_else(String::new, |(s, t)| {
+            format!("map: {}", super::map::summary(s, *t))
+        }),
+        _ => String::new(),
+    }
 }

@@ -1,16 +1,14 @@
 //! `harmap solve`.
 
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
-use std::sync::Arc;
 
 use harmap::grid::MemBudget;
 use harmap::run::RunDir;
 use harmap::solve::driver::Method;
-use harmap::solve::{solve, SolveOptions, SolveReport};
+use harmap::solve::{solve, SolveError, SolveOptions, SolveReport};
 
 use super::progress::Bars;
-use super::Global;
+use super::{Global, UsageError};
 
 /// Solve Laplace's equation for phi on a voxelized run (the paper's steps 4-5).
 ///
@@ -39,41 +37,45 @@ pub struct Args {
     pub run: PathBuf,
     #[command(flatten)]
     pub opts: SolveArgs,
-    /// Continue from the last checkpoint of an interrupted solve.
+    /// Continue from the last checkpoint of an interrupted solve (with the same
+    /// options: the command an interrupted solve prints has them).
     #[arg(long)]
     pub resume: bool,
+    /// Memory budget: peak resident memory (e.g. 256MiB, 2GiB).
+    #[arg(long, value_name = "SIZE", default_value_t = MemBudget::default())]
+    pub mem: MemBudget,
 }
 
-/// Solve flags, shared with `harmap run`.
+/// Solve flags, shared with `harmap run` (which flattens them under "Solve"); the
+/// defaults are [`SolveOptions::default`]'s.
 #[derive(clap::Args, Debug, Clone)]
+#[command(next_help_heading = "Solve")]
 pub struct SolveArgs {
     /// The iteration: multigrid (V-cycles), sor (red-black, optimal omega) or jacobi
     /// (the paper's, slow; a reference).
-    #[arg(long, value_enum, default_value_t = MethodArg::Multigrid)]
+    #[arg(long, value_enum, default_value_t = MethodArg::from(SolveOptions::default().method))]
     pub method: MethodArg,
-    /// Stop when the relative residual ||r||_2 / ||r_0||_2 is below R (0: off).
-    #[arg(long, value_name = "R", default_value_t = 1e-6)]
+    /// Stop when the relative residual ||r||_2 / ||r_0||_2 is below R, in [0, 1) (0:
+    /// off, with --tol).
+    #[arg(long, value_name = "R", default_value_t = SolveOptions::default().rtol)]
     pub rtol: f64,
     /// The paper's zeta: stop when the largest change of an iteration is below it (0:
     /// off).
-    #[arg(long, value_name = "ZETA", default_value_t = 0.0)]
+    #[arg(long, value_name = "ZETA", default_value_t = SolveOptions::default().tol)]
     pub tol: f64,
     /// Spacing of the exterior layers' values, 1 + k*eps.
-    #[arg(long, value_name = "E", default_value_t = 1e-4)]
+    #[arg(long, value_name = "E", default_value_t = SolveOptions::default().eps)]
     pub eps: f64,
-    /// Iteration limit (cycles for multigrid, sweeps for sor and jacobi).
-    #[arg(long, value_name = "N", default_value_t = 1000)]
+    /// Iteration limit (cycles for multigrid, sweeps for sor and jacobi; at least 1).
+    #[arg(long, value_name = "N", default_value_t = SolveOptions::default().max_iter)]
     pub max_iter: u64,
     /// Over-relaxation factor for --method sor [default: 2/(1+sin(pi/n)), n the longest
     /// axis].
     #[arg(long, value_name = "W")]
     pub omega: Option<f64>,
-    /// Time between checkpoints: 90s, 10m, 1h (0: only when interrupted).
-    #[arg(long, value_name = "DURATION", default_value = "5m", value_parser = parse_duration)]
+    /// Time between checkpoints, seconds or 90s, 10m, 1h (0: only when interrupted).
+    #[arg(long, value_name = "DURATION", default_value_t = SolveOptions::default().checkpoint_every, value_parser = parse_duration)]
     pub checkpoint_every: f64,
-    /// Memory budget: peak resident memory (e.g. 256MiB, 2GiB).
-    #[arg(long, value_name = "SIZE", default_value = "1GiB")]
-    pub mem: MemBudget,
 }
 
 /// `--method` values.
@@ -87,10 +89,20 @@ pub enum MethodArg {
     Jacobi,
 }
 
+impl From<Method> for MethodArg {
+    fn from(m: Method) -> Self {
+        match m {
+            Method::Multigrid => MethodArg::Multigrid,
+            Method::Sor => MethodArg::Sor,
+            Method::Jacobi => MethodArg::Jacobi,
+        }
+    }
+}
+
 impl SolveArgs {
-    /// The library options.
+    /// The library options, with the memory budget `mem`.
     #[must_use]
-    pub fn options(&self, resume: bool) -> SolveOptions {
+    pub fn options(&self, resume: bool, mem: MemBudget) -> SolveOptions {
         SolveOptions {
             method: match self.method {
                 MethodArg::Multigrid => Method::Multigrid,
@@ -102,7 +114,7 @@ impl SolveArgs {
             eps: self.eps,
             max_iter: self.max_iter,
             omega: self.omega,
-            mem: self.mem,
+            mem,
             checkpoint_every: self.checkpoint_every,
             resume,
             ..SolveOptions::default()
@@ -125,16 +137,6 @@ pub fn parse_duration(s: &str) -> Result<f64, String> {
     }
 }
 
-/// SIGINT and SIGTERM set the returned flag instead of killing the process; the solver
-/// polls it between iterations and checkpoints.
-pub fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
-    let flag = Arc::new(AtomicBool::new(false));
-    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(sig, Arc::clone(&flag))?;
-    }
-    Ok(flag)
-}
-
 /// One line about a finished solve.
 #[must_use]
 pub fn summary(r: &SolveReport, seconds: f64) -> String {
@@ -152,9 +154,42 @@ pub fn summary(r: &SolveReport, seconds: f64) -> String {
 /// Run `harmap solve`.
 pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     let run = RunDir::open(&a.run).map_err(harmap::Error::from)?;
-    let stop = stop_flag()?;
+    let opts = a.opts.options(a.resume, a.mem);
+    harmap::pipeline::check_solve(&opts)?;
+    if a.resume && !run.root().join("solve").join("manifest.json").exists() {
+        return Err(UsageError(format!(
+            "{}: no checkpoint to resume from (the solve was not started, or stopped before its first checkpoint); run `{}` without --resume",
+            a.run.display(),
+            continue_command(false)
+        ))
+        .into());
+    }
+    let interrupt = super::progress::catch_signals()?;
     let t = std::time::Instant::now();
-    let r = solve(&run, &a.opts.options(a.resume), &stop, &Bars::new(g))?;
+    let r = match solve(
+        &run,
+        &opts,
+        interrupt.flag(),
+        &Bars::with_interrupt(g, interrupt.clone()),
+    ) {
+        Ok(r) => r,
+        Err(harmap::Error::Solve(SolveError::Interrupted {
+            iterations, path, ..
+        })) => {
+            // The library's hint names the run only; the checkpoint is for these
+            // options, so the command that continues it repeats them.
+            return Err(super::run::Stopped {
+                code: super::run::exit_code_of(interrupt.signal()),
+                message: format!(
+                    "interrupted after {iterations} iterations; the state is checkpointed in {}; continue with `{}`",
+                    path.display(),
+                    continue_command(true)
+                ),
+            }
+            .into());
+        }
+        Err(e) => return Err(e.into()),
+    };
     g.say(&format!(
         "{}: {}; phi in {}",
         a.run.display(),
@@ -162,4 +197,14 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         run.root().join("phi").display()
     ));
     Ok(())
+}
+
+/// This process's command line, with `--resume` (`resume`) or without it, quoted for
+/// a POSIX shell.
+fn continue_command(resume: bool) -> String {
+    let mut args: Vec<String> = std::env::args().filter(|a| a != "--resume").collect();
+    if resume {
+        args.push("--resume".into());
+    }
+    super::run::shell_words(&args)
 }

@@ -47,15 +47,26 @@ pub struct Args {
     pub run: PathBuf,
     #[command(flatten)]
     pub opts: TraceArgs,
+    /// Error allowed per voxel of step, on top of --atol: a step of h voxels may err by
+    /// atol + rtol * h.
+    #[arg(long, value_name = "FRACTION", default_value_t = Rk45::default().rtol, help_heading = "Integrator")]
+    pub rtol: f64,
+    /// Memory budget: peak resident memory (e.g. 256MiB, 2GiB).
+    #[arg(long, value_name = "SIZE", default_value_t = MemBudget::default())]
+    pub mem: MemBudget,
 }
 
-/// Trace flags, shared with `harmap run`.
+/// Trace flags, shared with `harmap run` (which flattens them under "Trace"; the
+/// integrator's --rtol is `--trace-rtol` there, --rtol being the solve's). The
+/// defaults are [`TraceOptions`]' and [`Rk45`]'s.
 #[derive(clap::Args, Debug, Clone)]
+#[command(next_help_heading = "Trace")]
 pub struct TraceArgs {
     /// Seeds: every boundary voxel, or the vertices of the input surface (of the labels'
-    /// surface nets for inputs that are not meshes).
-    #[arg(long, value_enum, default_value_t = SeedArg::Boundary)]
-    pub seeds: SeedArg,
+    /// surface nets for inputs that are not meshes) [default: boundary for `harmap
+    /// trace`, surface for `harmap run`, whose summary then has the bijectivity numbers].
+    #[arg(long, value_enum)]
+    pub seeds: Option<SeedArg>,
     /// Trace a deterministic subset of N seeds (the same N gives the same seeds).
     #[arg(long, value_name = "N")]
     pub sample: Option<u64>,
@@ -66,9 +77,6 @@ pub struct TraceArgs {
     /// Tile edge, voxels [default: phi's chunk edge]. Results do not depend on it.
     #[arg(long, value_name = "VOXELS", hide_short_help = true)]
     pub tile: Option<u64>,
-    /// Memory budget: peak resident memory (e.g. 256MiB, 2GiB).
-    #[arg(long, value_name = "SIZE", default_value = "1GiB")]
-    pub mem: MemBudget,
     /// Error allowed per RK45 step, voxels [default: 1e-6 for boundary seeds, 1e-8 for
     /// surface seeds]. The arrival angles on the ball are the same from 1e-6 to 1e-8;
     /// a mesh's sphere map is not: its smallest triangles flip where neighbouring
@@ -76,10 +84,6 @@ pub struct TraceArgs {
     /// 1e-8; docs/trace.md).
     #[arg(long, value_name = "VOXELS", help_heading = "Integrator")]
     pub atol: Option<f64>,
-    /// Error allowed per voxel of step, on top of --atol: a step of h voxels may err by
-    /// atol + rtol * h.
-    #[arg(long, value_name = "FRACTION", default_value_t = Rk45::default().rtol, help_heading = "Integrator")]
-    pub rtol: f64,
     /// Smallest step, voxels; a streamline that needs a smaller one stops (stalled or
     /// left the domain).
     #[arg(long, value_name = "VOXELS", default_value_t = Rk45::default().h_min, help_heading = "Integrator")]
@@ -123,20 +127,21 @@ pub enum SeedArg {
 }
 
 impl TraceArgs {
-    /// The library options.
+    /// The library options: seeds `default_seeds` unless --seeds says, the integrator's
+    /// relative tolerance `rtol`, the memory budget `mem`.
     #[must_use]
-    pub fn options(&self) -> TraceOptions {
-        let seeds = self.seeds.kind();
+    pub fn options(&self, default_seeds: SeedKind, rtol: f64, mem: MemBudget) -> TraceOptions {
+        let seeds = self.seeds.map_or(default_seeds, SeedArg::kind);
         let default = Rk45::for_seeds(seeds);
         TraceOptions {
             seeds,
             sample: self.sample,
             stop_radius: self.stop_radius,
             tile: self.tile,
-            mem: self.mem,
+            mem,
             rk: Rk45 {
                 atol: self.atol.unwrap_or(default.atol),
-                rtol: self.rtol,
+                rtol,
                 h_min: self.h_min,
                 h_max: self.h_max,
                 max_steps: self.max_steps,
@@ -180,8 +185,11 @@ pub fn summary(r: &TraceReport, seconds: f64) -> String {
 /// Run `harmap trace`.
 pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     let run = RunDir::open(&a.run).map_err(harmap::Error::from)?;
+    let opts = a.opts.options(SeedKind::Boundary, a.rtol, a.mem);
+    let attrs = run.attrs().map_err(harmap::Error::from)?;
+    harmap::pipeline::check_stop_radius(&attrs, opts.stop_radius)?;
     let t = std::time::Instant::now();
-    let r = trace(&run, &a.opts.options(), &Bars::new(g))?;
+    let r = trace(&run, &opts, &Bars::new(g))?;
     g.say(&format!(
         "{}: {}; table in {}",
         a.run.display(),

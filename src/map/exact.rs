@@ -61,6 +61,7 @@ pub(super) fn exact(
     let blocks = decomp.owned(&spec);
     let mut i = 0;
     while i < blocks.len() {
+        crate::progress::check_interrupt(progress)?;
         // Whole blocks until the batch is full.
         let mut batch: Vec<BatchBlock> = Vec::new();
         let mut seeds: Vec<DVec3> = Vec::new();

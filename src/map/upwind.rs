@@ -191,6 +191,7 @@ pub fn transport_with(
             }
         }
         loop {
+            crate::progress::check_interrupt(progress)?;
             let first = book.stats.rounds[slot] == 0 && rule == Rule::Upwind;
             book.stats.rounds[slot] += 1;
             if first {
@@ -209,6 +210,7 @@ pub fn transport_with(
                 ctx.ordered(&mut book, &plan.order)?;
             } else {
                 for g in &plan.colours {
+                    crate::progress::check_interrupt(progress)?;
                     ctx.group(&mut book, g, rule, false)?;
                 }
             }

@@ -142,6 +142,7 @@ pub fn read_seeds(run: &RunDir) -> Result<SeedTable, crate::Error> {
         }
         .into());
     }
+    run.refuse_stale("trace")?;
     let f64s = |c: &str| -> Result<Vec<f64>, GridError> {
         Ok(read_table::<f64>(root, &format!("/seeds/{c}"))?.1)
     };

@@ -431,6 +431,9 @@ pub fn trace_tiled_with(
     let mut seen = std::collections::HashSet::new();
     progress.start("trace", n as u64);
     while !pending.is_empty() {
+        // A stop request ends the trace between rounds (a round is a fraction of a
+        // second of work).
+        crate::progress::check_interrupt(progress)?;
         stats.rounds += 1;
         // This round: the waiting tiles farthest from the center, at most a wave of
         // them. Streamlines flow inward, so a tile is mostly visited once, after the
@@ -492,7 +495,15 @@ pub fn trace_tiled_with(
                 let results = v
                     .par_chunks(512)
                     .with_max_len(1)
-                    .map(|slice| advance_slice(slice, &tile, lo, hi, rk, ball, record_paths))
+                    .map(|slice| {
+                        // Stopping: the lines go back to wait unchanged, and the next
+                        // round's check ends the trace (a slice is a fraction of a second).
+                        if progress.interrupted() {
+                            let back = slice.iter().map(|l| (*l, Vec::new())).collect();
+                            return (Vec::new(), back);
+                        }
+                        advance_slice(slice, &tile, lo, hi, rk, ball, record_paths)
+                    })
                     .collect();
                 Ok((new.then_some((k, tile)), results))
             })

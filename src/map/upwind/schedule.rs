@@ -309,6 +309,7 @@ impl Ctx<'_> {
             // A panic stops the others too (they would wait for this block forever)
             // and is raised again once they have.
             let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                crate::progress::check_interrupt(self.progress)?;
                 self.visit(b, Rule::Upwind, false, true)
             }));
             let mut st = lock();

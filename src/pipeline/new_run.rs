@@ -1,26 +1,17 @@
-//! Stages chained over a run directory. `harmap run` and the stage subcommands call
-//! these, so a stage run alone and a stage run by the pipeline write the same run.
+//! A new run: the voxelization (with the probe ladder of molecules) written under a
+//! staging name and renamed into place when whole, and its record in the attributes.
 
 use std::path::Path;
 use std::time::Instant;
 
 use serde_json::{json, Value};
 
-use crate::input::{self, InputOptions, Shape};
+use crate::input::{self, Shape};
 use crate::progress::Progress;
 use crate::run::{RunDir, Staging};
 use crate::voxelize::{self, VoxelizeOptions, VoxelizeReport};
 
-/// Where the shape comes from.
-#[derive(Clone, Debug)]
-pub enum Source<'a> {
-    /// A file (or a Zarr directory) to read.
-    File(&'a Path, &'a InputOptions),
-    /// The built-in five-armed starfish.
-    Starfish,
-    /// A surface already in memory, with a name for messages.
-    Mesh(&'a crate::input::TriMesh, &'a str),
-}
+use super::Source;
 
 /// Voxelize `source` into a new run directory at `out` (replacing an existing one only
 /// when `force`). The run is built under a staging name and renamed into place when

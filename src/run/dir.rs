@@ -1,0 +1,222 @@
+//! An open run directory: its attributes and its images.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use serde_json::{json, Map, Value};
+
+use super::staging::lock_file;
+use super::{io, ome_multiscales, write_atomic, RunError, RunLock, FORMAT_VERSION};
+use crate::grid::{Compression, GridSpec, Scalar, ZarrStore};
+
+/// An open run directory.
+#[derive(Clone, Debug)]
+pub struct RunDir {
+    pub(super) root: PathBuf,
+}
+
+impl RunDir {
+    /// Open an existing run directory and check its format version.
+    pub fn open(path: &Path) -> Result<Self, RunError> {
+        let not = |reason: &str| RunError::NotARun {
+            path: path.to_owned(),
+            reason: reason.to_owned(),
+        };
+        let meta = path.join("zarr.json");
+        let text = fs::read_to_string(&meta).map_err(|_| {
+            if path.exists() {
+                not("no zarr.json in it")
+            } else {
+                not("no such directory")
+            }
+        })?;
+        let v: Value =
+            serde_json::from_str(&text).map_err(|_| not("zarr.json is not valid JSON"))?;
+        let version = v
+            .pointer("/attributes/harmap/format_version")
+            .and_then(Value::as_u64)
+            .ok_or_else(|| not("zarr.json has no harmap attributes"))?;
+        if version != FORMAT_VERSION {
+            return Err(RunError::Version {
+                path: path.to_owned(),
+                found: version,
+            });
+        }
+        Ok(Self {
+            root: path.to_owned(),
+        })
+    }
+
+    /// The directory.
+    #[must_use]
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    /// The `harmap` group attributes.
+    pub fn attrs(&self) -> Result<Value, RunError> {
+        let p = self.root.join("zarr.json");
+        let text = fs::read_to_string(&p).map_err(io(&p))?;
+        let v: Value = serde_json::from_str(&text).map_err(|e| RunError::NotARun {
+            path: self.root.clone(),
+            reason: format!("zarr.json: {e}"),
+        })?;
+        Ok(v.pointer("/attributes/harmap")
+            .cloned()
+            .unwrap_or(Value::Null))
+    }
+
+    pub(super) fn write_group_attrs(&self, harmap: &Value) -> Result<(), RunError> {
+        let doc = json!({
+            "zarr_format": 3,
+            "node_type": "group",
+            "attributes": { "harmap": harmap }
+        });
+        write_atomic(
+            &self.root.join("zarr.json"),
+            serde_json::to_string_pretty(&doc).expect("json").as_bytes(),
+        )
+    }
+
+    /// Change the `harmap` attributes atomically.
+    pub fn update_attrs(&self, f: impl FnOnce(&mut Map<String, Value>)) -> Result<(), RunError> {
+        let mut v = self.attrs()?;
+        let obj = v.as_object_mut().ok_or_else(|| RunError::NotARun {
+            path: self.root.clone(),
+            reason: "harmap attributes are not an object".into(),
+        })?;
+        f(obj);
+        self.write_group_attrs(&v)
+    }
+
+    /// The grid of the run (from `harmap.grid`), with the chunk shape of `labels/0`.
+    pub fn grid(&self) -> Result<GridSpec, RunError> {
+        let a = self.attrs()?;
+        let g = a.get("grid").ok_or_else(|| RunError::StageMissing {
+            path: self.root.clone(),
+            stage: "voxelize".into(),
+        })?;
+        serde_json::from_value(g.clone()).map_err(|e| RunError::NotARun {
+            path: self.root.clone(),
+            reason: format!("harmap.grid: {e}"),
+        })
+    }
+
+    /// Create the OME-Zarr image group `name` with its single array `name/0`.
+    pub fn create_image<T: Scalar>(
+        &self,
+        name: &str,
+        spec: &GridSpec,
+        fill: T,
+        compression: Compression,
+    ) -> Result<ZarrStore<T>, crate::Error> {
+        self.write_image(name, name, spec, fill, compression)
+    }
+
+    /// The image group `name` (OME metadata and array `0`) in the directory `dir_name`.
+    fn write_image<T: Scalar>(
+        &self,
+        dir_name: &str,
+        name: &str,
+        spec: &GridSpec,
+        fill: T,
+        compression: Compression,
+    ) -> Result<ZarrStore<T>, crate::Error> {
+        let dir = self.root.join(dir_name);
+        fs::create_dir_all(&dir).map_err(io(&dir))?;
+        let doc = json!({
+            "zarr_format": 3,
+            "node_type": "group",
+            "attributes": { "ome": ome_multiscales(name, spec) }
+        });
+        write_atomic(
+            &dir.join("zarr.json"),
+            serde_json::to_string_pretty(&doc).expect("json").as_bytes(),
+        )?;
+        Ok(ZarrStore::create(
+            &self.root,
+            &format!("/{dir_name}/0"),
+            spec.clone(),
+            fill,
+            compression,
+            Map::new(),
+        )?)
+    }
+
+    /// Hold the run's lock file (`RUN.lock`) while a stage changes the run, so two
+    /// harmap processes never write the same run. Released when the guard drops.
+    pub fn lock(&self) -> Result<RunLock, RunError> {
+        let (file, path) = lock_file(&self.root)?;
+        if file.try_lock().is_err() {
+            return Err(RunError::Busy {
+                path: self.root.clone(),
+            });
+        }
+        Ok(RunLock { file, path })
+    }
+
+    /// Create the image `name` under a temporary directory name; [`RunDir::commit_image`]
+    /// moves it into place once whole, so a killed stage never leaves a partial image
+    /// under the real name.
+    pub fn create_image_staged<T: Scalar>(
+        &self,
+        name: &str,
+        spec: &GridSpec,
+        fill: T,
+        compression: Compression,
+    ) -> Result<ZarrStore<T>, crate::Error> {
+        let tmp = format!("{name}.partial");
+        let dir = self.root.join(&tmp);
+        if dir.exists() {
+            fs::remove_dir_all(&dir).map_err(io(&dir))?;
+        }
+        self.write_image(&tmp, name, spec, fill, compression)
+    }
+
+    /// Move the image staged by [`RunDir::create_image_staged`] into place, replacing an
+    /// older one.
+    pub fn commit_image(&self, name: &str) -> Result<(), RunError> {
+        let tmp = self.root.join(format!("{name}.partial"));
+        let dest = self.root.join(name);
+        let old = self.root.join(format!("{name}.old-{}", std::process::id()));
+        let replacing = dest.exists();
+        if replacing {
+            fs::rename(&dest, &old).map_err(io(&dest))?;
+        }
+        fs::rename(&tmp, &dest).map_err(io(&dest))?;
+        if let Ok(d) = fs::File::open(&self.root) {
+            let _ = d.sync_all();
+        }
+        if replacing {
+            fs::remove_dir_all(&old).map_err(io(&old))?;
+        }
+        Ok(())
+    }
+
+    /// The Zarr data type of image `name` (`float32`, `float64`, `uint8`, ...).
+    pub fn image_data_type(&self, name: &str) -> Result<String, crate::Error> {
+        let path = self.root.join(name).join("0").join("zarr.json");
+        let text = fs::read_to_string(&path).map_err(io(&path))?;
+        let meta: Value =
+            serde_json::from_str(&text).map_err(|e| crate::grid::GridError::Zarr {
+                path: path.display().to_string(),
+                message: e.to_string(),
+            })?;
+        meta.get("data_type")
+            .and_then(Value::as_str)
+            .map(str::to_owned)
+            .ok_or_else(|| {
+                crate::grid::GridError::Zarr {
+                    path: path.display().to_string(),
+                    message: "no data_type".into(),
+                }
+                .into()
+            })
+    }
+
+    /// Open the array of image `name`.
+    pub fn open_image<T: Scalar>(&self, name: &str) -> Result<ZarrStore<T>, crate::Error> {
+        let spec = self.grid()?;
+        Ok(ZarrStore::open(&self.root, &format!("/{name}/0"), spec)?)
+    }
+}
