@@ -6,6 +6,7 @@ mod interop;
 mod map;
 mod meshes;
 mod molecules;
+mod report;
 mod solve;
 mod trace;
 mod voxelize;

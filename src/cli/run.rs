@@ -189,6 +189,10 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         eprintln!("warning: atlas colored by the main axis: {e}");
         harmap::report::atlas(&run, &atlas, false, &harmap::report::ColorBy::Axis)?;
     }
+    // The report page beside the atlas. (When `harmap run` moves into
+    // harmap::pipeline::run, this call goes with it.)
+    let page = super::report::default_path(&out);
+    harmap::report::html::write_report(&run, &page)?;
     let attrs = run.attrs().map_err(harmap::Error::from)?;
     let secs = |s: &str| {
         attrs
@@ -222,7 +226,7 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     g.say(&format!(
         "{}: done. Seconds per stage: voxelize {:.2}, solve {:.2}, trace {:.2}, map {:.2}.\n  \
          {:.3}% of the streamlines reached the center; {bijectivity}; {mapped} mapped.\n  \
-         fields: {0}/phi, {0}/theta, {0}/psi (Zarr); seed table: {0}/seeds; atlas: {}\n  \
+         fields: {0}/phi, {0}/theta, {0}/psi (Zarr); seed table: {0}/seeds; atlas: {}; report: {}\n  \
          `harmap info {0}` shows the numbers; `harmap export {0} --format nifti|vti|csv|...` exports.",
         out.display(),
         secs("voxelize"),
@@ -231,6 +235,7 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         secs("map"),
         100.0 * num("/reached_fraction").as_f64().unwrap_or(f64::NAN),
         atlas.display(),
+        page.display(),
     ));
     Ok(())
 }

@@ -18,6 +18,7 @@ use crate::run::RunDir;
 use crate::trace::{read_seeds, SeedTable};
 
 pub mod domains;
+pub mod html;
 
 /// Errors of drawing.
 #[derive(Debug, thiserror::Error)]

@@ -368,7 +368,11 @@ impl RunDir {
         options: impl serde::Serialize,
         result: impl serde::Serialize,
     ) -> Result<(), RunError> {
-        let v = json!({"status": "done", "seconds": seconds, "options": options, "result": result});
+        let mut v =
+            json!({"status": "done", "seconds": seconds, "options": options, "result": result});
+        if let Some(peak) = take_peak_rss() {
+            v["peak_rss_bytes"] = json!(peak);
+        }
         self.update_attrs(|a| {
             let stages = a.entry("stages").or_insert_with(|| json!({}));
             stages[name] = v;
@@ -518,6 +522,27 @@ impl RunDir {
         let spec = self.grid()?;
         Ok(ZarrStore::open(&self.root, &format!("/{name}/0"), spec)?)
     }
+}
+
+/// The process's peak resident memory, bytes, since the last call (or since it
+/// started), and the peak measure restarted, so that each stage recorded by a process
+/// that runs several gets its own peak. Linux only (`VmHWM` of /proc/self/status, reset
+/// through /proc/self/clear_refs); None elsewhere or when /proc cannot be read. When
+/// the reset is refused the peak stays that of the whole process so far.
+#[must_use]
+pub fn take_peak_rss() -> Option<u64> {
+    let status = fs::read_to_string("/proc/self/status").ok()?;
+    let kib: u64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))?
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    // "5" resets the peak to the current resident set (Linux 4.0 and later).
+    let _ = fs::write("/proc/self/clear_refs", "5");
+    Some(kib * 1024)
 }
 
 /// Whether `harmap.stages.<stage>.status` is `done` in the attributes `attrs`.
