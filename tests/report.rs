@@ -101,15 +101,14 @@ fn check_self_contained(page: &str) -> usize {
     );
     assert!(!page.contains("<script"), "no scripts");
     let imgs = page.matches("<img ").count();
-    let srcs: Vec<&str> = page
+    let srcs: Vec<String> = page
         .split("<img ")
         .skip(1)
         .map(|t| {
-            let tag = &t[..t.find('>').unwrap()];
-            let v = attr_values(&format!(" {tag}"), "src");
+            let tag = format!(" {}", &t[..t.find('>').unwrap()]);
+            let v = attr_values(&tag, "src");
             assert_eq!(v.len(), 1, "one src per <img>");
-            let s = v[0].to_owned();
-            Box::leak(s.into_boxed_str()) as &str
+            v[0].to_owned()
         })
         .collect();
     assert_eq!(srcs.len(), imgs);

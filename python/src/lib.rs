@@ -105,7 +105,10 @@ impl harmap::progress::Progress for Shared {
 fn report(py: Python<'_>, s: &Shared, cb: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
     for w in std::mem::take(&mut *s.warnings.lock().expect("progress lock")) {
         let warnings = py.import("warnings")?;
-        warnings.call_method1("warn", (w, py.get_type::<pyo3::exceptions::PyUserWarning>(), 3))?;
+        warnings.call_method1(
+            "warn",
+            (w, py.get_type::<pyo3::exceptions::PyUserWarning>(), 3),
+        )?;
     }
     if let Some(cb) = cb {
         let (id, name) = s.phase.lock().expect("progress lock").clone();
@@ -287,9 +290,11 @@ fn voxelize(
         opts.center = Some([0.0, 0.0, 0.0]);
     }
     let r = detached(py, progress.as_ref(), None, |p| {
-        let source = path.as_ref().map_or(harmap::pipeline::Source::Starfish, |f| {
-            harmap::pipeline::Source::File(f, &iopts)
-        });
+        let source = path
+            .as_ref()
+            .map_or(harmap::pipeline::Source::Starfish, |f| {
+                harmap::pipeline::Source::File(f, &iopts)
+            });
         harmap::pipeline::voxelize_new_run(&source, &opts, &out, force, p)
     })?;
     let (_, report) = r.map_err(|e| harmap_err(py, &e))?;
@@ -465,7 +470,9 @@ fn map(
         stop_radius,
         mem: mem_budget(mem)?,
     };
-    let rep = detached(py, progress.as_ref(), None, |p| harmap::map::map(&r, &opts, p))?;
+    let rep = detached(py, progress.as_ref(), None, |p| {
+        harmap::map::map(&r, &opts, p)
+    })?;
     rep.map(|x| json_str(&x)).map_err(|e| harmap_err(py, &e))
 }
 
@@ -511,8 +518,10 @@ fn atlas(
 #[pyfunction]
 fn report_page(py: Python<'_>, run: PathBuf, dest: PathBuf) -> PyResult<()> {
     let r = open(py, &run)?;
-    detached(py, None, None, |_| harmap::report::html::write_report(&r, &dest))?
-        .map_err(|e| harmap_err(py, &e))
+    detached(py, None, None, |_| {
+        harmap::report::html::write_report(&r, &dest)
+    })?
+    .map_err(|e| harmap_err(py, &e))
 }
 
 /// Export, as `harmap export`: format csv, obj-sphere, vtk-streamlines, nifti, vti, dx

@@ -197,10 +197,10 @@ fn at<'a>(v: &'a Value, ptr: &str) -> &'a Value {
 }
 
 fn missing(p: &mut String, title: &str, stage: &str) {
-    let _ = write!(
+    let _ = writeln!(
         p,
         "<section><h2>{title}</h2><p class=\"note\">The {stage} stage has not run on this \
-         run yet (<code>harmap {stage} RUN</code> runs it).</p></section>\n"
+         run yet (<code>harmap {stage} RUN</code> runs it).</p></section>"
     );
 }
 
@@ -587,6 +587,10 @@ fn draw(run: &RunDir, sphere: bool, by: &super::ColorBy) -> Result<Vec<u8>, crat
     std::fs::read(&png).map_err(io)
 }
 
+/// A field of the slices: its name, the stage that writes it, its colors, the ends of
+/// its color bar and what it is.
+type SliceField<'a> = (&'a str, &'a str, Colormap, (&'a str, &'a str), &'a str);
+
 fn slices_section(p: &mut String, run: &RunDir, a: &Value) {
     let Some(c) = a
         .get("center_voxel")
@@ -597,7 +601,7 @@ fn slices_section(p: &mut String, run: &RunDir, a: &Value) {
         return;
     };
     let pi = std::f64::consts::PI;
-    let fields: [(&str, &str, Colormap, (&str, &str), &str); 3] = [
+    let fields: [SliceField<'_>; 3] = [
         (
             "phi",
             "solve",

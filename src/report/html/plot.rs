@@ -51,7 +51,7 @@ pub fn log_history(series: &[Series<'_>], target: Option<f64>) -> Option<String>
     let mut s = String::new();
     let _ = write!(
         s,
-        r##"<svg class="plot" viewBox="0 0 {W} {H}" width="{W}" height="{H}" role="img" aria-label="convergence history">"##
+        r#"<svg class="plot" viewBox="0 0 {W} {H}" width="{W}" height="{H}" role="img" aria-label="convergence history">"#
     );
     let _ = write!(
         s,
@@ -72,7 +72,7 @@ pub fn log_history(series: &[Series<'_>], target: Option<f64>) -> Option<String>
         if (d - lo as i64) % every == 0 {
             let _ = write!(
                 s,
-                r##"<text x="{}" y="{:.1}" text-anchor="end" font-size="11">1e{d}</text>"##,
+                r#"<text x="{}" y="{:.1}" text-anchor="end" font-size="11">1e{d}</text>"#,
                 LEFT - 6.0,
                 y + 4.0
             );
@@ -95,7 +95,7 @@ pub fn log_history(series: &[Series<'_>], target: Option<f64>) -> Option<String>
     }
     let _ = write!(
         s,
-        r##"<text x="{}" y="{}" text-anchor="middle" font-size="12">iteration</text>"##,
+        r#"<text x="{}" y="{}" text-anchor="middle" font-size="12">iteration</text>"#,
         LEFT + (W - LEFT - RIGHT) / 2.0,
         H - 8.0
     );
@@ -122,7 +122,7 @@ pub fn log_history(series: &[Series<'_>], target: Option<f64>) -> Option<String>
         }
         let _ = write!(
             s,
-            r##"<polyline fill="none" stroke="{}" stroke-width="2" points="{}"/>"##,
+            r#"<polyline fill="none" stroke="{}" stroke-width="2" points="{}"/>"#,
             ser.color,
             pts.join(" ")
         );
@@ -131,7 +131,7 @@ pub fn log_history(series: &[Series<'_>], target: Option<f64>) -> Option<String>
                 let (x, y) = p.split_once(',').unwrap_or(("0", "0"));
                 let _ = write!(
                     s,
-                    r##"<circle cx="{x}" cy="{y}" r="2.5" fill="{}"/>"##,
+                    r#"<circle cx="{x}" cy="{y}" r="2.5" fill="{}"/>"#,
                     ser.color
                 );
             }
@@ -140,7 +140,7 @@ pub fn log_history(series: &[Series<'_>], target: Option<f64>) -> Option<String>
         let lx = W - RIGHT - 170.0;
         let _ = write!(
             s,
-            r##"<line x1="{lx}" x2="{}" y1="{ly}" y2="{ly}" stroke="{}" stroke-width="2"/><text x="{}" y="{}" font-size="11">{}</text>"##,
+            r#"<line x1="{lx}" x2="{}" y1="{ly}" y2="{ly}" stroke="{}" stroke-width="2"/><text x="{}" y="{}" font-size="11">{}</text>"#,
             lx + 18.0,
             ser.color,
             lx + 24.0,
@@ -166,6 +166,7 @@ fn nice_step(raw: f64) -> f64 {
 }
 
 #[cfg(test)]
+#[allow(clippy::float_cmp)] // round steps are exact
 mod tests {
     use super::*;
 

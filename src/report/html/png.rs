@@ -19,7 +19,7 @@ pub fn encode_rgb(width: u32, height: u32, rgb: &[u8]) -> Vec<u8> {
     ihdr.extend_from_slice(&height.to_be_bytes());
     // Bit depth 8, color type 2 (RGB), deflate, adaptive filtering, no interlace.
     ihdr.extend_from_slice(&[8, 2, 0, 0, 0]);
-    chunk(&mut out, b"IHDR", &ihdr);
+    chunk(&mut out, *b"IHDR", &ihdr);
     // Every row starts with filter type 0 (none): the pictures are small.
     let row = width as usize * 3;
     let mut raw = Vec::with_capacity(rgb.len() + height as usize);
@@ -31,17 +31,17 @@ pub fn encode_rgb(width: u32, height: u32, rgb: &[u8]) -> Vec<u8> {
     // Writing into a Vec cannot fail.
     z.write_all(&raw).expect("in-memory write");
     let idat = z.finish().expect("in-memory write");
-    chunk(&mut out, b"IDAT", &idat);
-    chunk(&mut out, b"IEND", &[]);
+    chunk(&mut out, *b"IDAT", &idat);
+    chunk(&mut out, *b"IEND", &[]);
     out
 }
 
-fn chunk(out: &mut Vec<u8>, kind: &[u8; 4], data: &[u8]) {
+fn chunk(out: &mut Vec<u8>, kind: [u8; 4], data: &[u8]) {
     out.extend_from_slice(&(data.len() as u32).to_be_bytes());
-    out.extend_from_slice(kind);
+    out.extend_from_slice(&kind);
     out.extend_from_slice(data);
     let mut c = Crc32::new();
-    c.update(kind);
+    c.update(&kind);
     c.update(data);
     out.extend_from_slice(&c.finish().to_be_bytes());
 }
