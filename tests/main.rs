@@ -8,6 +8,7 @@ mod meshes;
 mod molecules;
 mod pipeline;
 mod reliability;
+mod report;
 mod solve;
 mod topology;
 mod trace;

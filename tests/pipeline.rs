@@ -29,6 +29,7 @@ fn options(out: &Path) -> PipelineOptions {
         trace: TraceOptions::for_seeds(SeedKind::Surface),
         map: MapOptions::default(),
         atlas: Some(out.with_extension("atlas.png")),
+        report: None,
     }
 }
 

@@ -11,6 +11,7 @@ mod info;
 mod inverse;
 mod map;
 mod progress;
+mod report;
 mod run;
 mod solve;
 mod trace;
@@ -80,6 +81,7 @@ enum Command {
     Atlas(atlas::Args),
     Export(export::Args),
     Info(info::Args),
+    Report(report::Args),
     Bench(bench::Args),
 }
 
@@ -218,6 +220,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Atlas(a) => atlas::run(&a, &global),
         Command::Export(a) => export::run(&a, &global),
         Command::Info(a) => info::run(&a, &global),
+        Command::Report(a) => report::run(&a, &global),
         Command::Bench(a) => bench::run(&a, &global),
     }
 }

@@ -129,6 +129,7 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         trace: a.trace.options(SeedKind::Surface, a.trace_rtol, mem),
         map: a.map.options(None, mem),
         atlas: Some(out.with_extension("atlas.png")),
+        report: Some(super::report::default_path(&out)),
     };
     let source = a
         .input
@@ -195,10 +196,14 @@ fn print(r: &PipelineReport, g: &Global) {
         .atlas
         .as_ref()
         .map_or_else(|| "none".to_owned(), |p| p.display().to_string());
+    let page = r
+        .report
+        .as_ref()
+        .map_or_else(|| "none".to_owned(), |p| p.display().to_string());
     g.say(&format!(
         "{out}: done. Seconds per stage: voxelize {:.2}, solve {:.2}, trace {:.2}, map {:.2}.\n  \
          {:.3}% of the streamlines reached the center; {bijectivity}; {} of {} voxels mapped.\n  \
-         fields: {out}/phi, {out}/theta, {out}/psi (Zarr); seed table: {out}/seeds; atlas: {atlas}\n  \
+         fields: {out}/phi, {out}/theta, {out}/psi (Zarr); seed table: {out}/seeds; atlas: {atlas}; report: {page}\n  \
          `harmap info {out}` shows the numbers; `harmap export {out} --format nifti|vti|csv|...` exports.",
         s.seconds[0],
         s.seconds[1],

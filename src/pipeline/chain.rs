@@ -59,6 +59,7 @@ pub fn run(
         map: None,
         atlas: None,
         atlas_fallback: None,
+        report: None,
         summary: Summary::default(),
     };
 
@@ -161,6 +162,14 @@ pub fn run(
                 .map_err(|e| fail("atlas", e))?;
         }
         report.atlas = Some(dest.clone());
+    }
+    // The report page, after the atlas, whose picture it shows too.
+    if let Some(dest) = &opts.report {
+        if progress.interrupted() {
+            return Err(stopped("report"));
+        }
+        crate::report::html::write_report(&run, dest).map_err(|e| fail("report", e))?;
+        report.report = Some(dest.clone());
     }
     report.summary = summary(&attrs(&run)?);
     Ok(report)

@@ -53,6 +53,8 @@ pub struct PipelineOptions {
     pub map: MapOptions,
     /// Where to draw the atlas (`None`: no atlas).
     pub atlas: Option<PathBuf>,
+    /// Where to write the report page ([`crate::report::html`]; `None`: no page).
+    pub report: Option<PathBuf>,
 }
 
 /// What [`run`] did with one stage.
@@ -105,6 +107,8 @@ pub struct PipelineReport {
     pub atlas: Option<PathBuf>,
     /// Why the atlas is colored by the main axis instead of the residues, if it is.
     pub atlas_fallback: Option<String>,
+    /// The report page written, if any.
+    pub report: Option<PathBuf>,
     /// The numbers of the finished run.
     pub summary: Summary,
 }

@@ -187,6 +187,9 @@ fn record_voxelize(
         let stages = a.entry("stages").or_insert_with(|| json!({}));
         stages["voxelize"] =
             json!({"status": "done", "seconds": seconds, "options": options, "result": result});
+        if let Some(peak) = crate::run::take_peak_rss() {
+            stages["voxelize"]["peak_rss_bytes"] = json!(peak);
+        }
     })?;
     Ok(())
 }

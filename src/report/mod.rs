@@ -20,6 +20,7 @@ use crate::run::RunDir;
 use crate::trace::read_seeds;
 
 pub mod domains;
+pub mod html;
 mod legend;
 mod paint;
 mod palette;

@@ -191,6 +191,7 @@ impl RunDir {
     ) -> Result<(), RunError> {
         let options = serde_json::to_value(options).unwrap_or(Value::Null);
         let result = serde_json::to_value(result).unwrap_or(Value::Null);
+        let peak = take_peak_rss();
         self.update_attrs(|a| {
             let now = Value::Object(a.clone());
             let inputs = input_digests(&now, name);
@@ -202,6 +203,9 @@ impl RunDir {
                 "result": result,
                 "inputs": inputs,
             });
+            if let Some(peak) = peak {
+                stages[name]["peak_rss_bytes"] = json!(peak);
+            }
         })
     }
 
@@ -258,6 +262,27 @@ impl RunDir {
     pub fn freshness(&self, stage: &str) -> Result<Freshness, RunError> {
         Ok(freshness(&self.attrs()?, stage))
     }
+}
+
+/// The process's peak resident memory, bytes, since the last call (or since it
+/// started), and the peak measure restarted, so that each stage recorded by a process
+/// that runs several gets its own peak. Linux only (`VmHWM` of /proc/self/status, reset
+/// through /proc/self/clear_refs); None elsewhere or when /proc cannot be read. When
+/// the reset is refused the peak stays that of the whole process so far.
+#[must_use]
+pub fn take_peak_rss() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let kib: u64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))?
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    // "5" resets the peak to the current resident set (Linux 4.0 and later).
+    let _ = std::fs::write("/proc/self/clear_refs", "5");
+    Some(kib * 1024)
 }
 
 #[cfg(test)]
