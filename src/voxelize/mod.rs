@@ -38,16 +38,16 @@ mod topology;
 
 use serde::{Deserialize, Serialize};
 
-pub use classify::CenterBall;
 pub(crate) use classify::worker_bytes as label_worker_bytes;
+pub use classify::CenterBall;
 pub use error::VoxelizeError;
 pub use grid_fit::{fit_bbox, fit_volume, DEFAULT_RESOLUTION, MAX_AXIS, MAX_VOXELS, MIN_PADDING};
 pub use probes::probe_summary;
 pub use scanline::InsideRule;
 pub(crate) use scratch::scratch_grid;
 pub use stage::voxelize;
-pub use topology::summary as repair_summary;
 pub use standard::{standard_ball, StandardBall};
+pub use topology::summary as repair_summary;
 
 use crate::grid::{GridSpec, MemBudget};
 use crate::math::Idx3;
@@ -310,4 +310,3 @@ pub struct ProbeTrial {
     /// Pieces of the solid left (after `--keep-largest`).
     pub components: u64,
 }
-
