@@ -11,7 +11,10 @@ use harmap::voxelize::{Scratch, TopologyMode, VoxelizeOptions, VoxelizeReport};
 
 use crate::common::{read_labels, shared_data, sphere, torus, winding_disagreements};
 
-fn vox(mesh: &TriMesh, opts: &VoxelizeOptions) -> (tempfile::TempDir, Result<VoxelizeReport, harmap::Error>) {
+fn vox(
+    mesh: &TriMesh,
+    opts: &VoxelizeOptions,
+) -> (tempfile::TempDir, Result<VoxelizeReport, harmap::Error>) {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("r.harmap");
     let r = voxelize_new_run(&Source::Mesh(mesh, "test mesh"), opts, &out, false, &Silent)
@@ -118,7 +121,10 @@ fn a_genus_0_mesh_whose_ends_touch_is_repaired_where_they_touch() {
     // Few changes: no more than one cross-section of the tube.
     let h = r.grid.spacing;
     let section = PI * (small / h).powi(2);
-    assert!(changed > 0 && (changed as f64) < section, "{changed} voxels changed; a cross-section has {section:.0}");
+    assert!(
+        changed > 0 && (changed as f64) < section,
+        "{changed} voxels changed; a cross-section has {section:.0}"
+    );
     // Where the ends touch: the largest change is within two voxels of the gap.
     let p = Vec3::from_array(rep.regions[0].position);
     let (c, s) = (GAP_AT.cos(), GAP_AT.sin());
@@ -147,7 +153,9 @@ fn a_real_torus_is_refused_by_default_and_repaired_on_request() {
     let mesh = torus(1.0, 0.35, 64, 32);
     let msg = vox(&mesh, &res(32)).1.unwrap_err().to_string();
     assert!(
-        msg.contains("genus 1") && msg.contains("--topology repair") && msg.contains("--allow-genus"),
+        msg.contains("genus 1")
+            && msg.contains("--topology repair")
+            && msg.contains("--allow-genus"),
         "{msg}"
     );
     let (draw, raw) = vox(
@@ -177,7 +185,11 @@ fn a_real_torus_is_refused_by_default_and_repaired_on_request() {
     assert_eq!(rep.method, "cut");
     assert!(rep.alternative_voxels > rep.voxels_removed + rep.voxels_added);
     // A real handle's cut is large: said in a warning.
-    assert!(r.warnings.iter().any(|w| w.contains("more than 0.1%")), "{:?}", r.warnings);
+    assert!(
+        r.warnings.iter().any(|w| w.contains("more than 0.1%")),
+        "{:?}",
+        r.warnings
+    );
 }
 
 #[test]
@@ -198,7 +210,10 @@ fn specks_and_separate_pieces_are_dropped_and_reported() {
         ..res(32)
     };
     let msg = vox(&two, &strict).1.unwrap_err().to_string();
-    assert!(msg.contains("2 separate pieces") && msg.contains("--keep-largest"), "{msg}");
+    assert!(
+        msg.contains("2 separate pieces") && msg.contains("--keep-largest"),
+        "{msg}"
+    );
 }
 
 #[test]
@@ -240,8 +255,8 @@ fn horse_at_96_is_one_genus_0_piece_by_default() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("horse.harmap");
     let iopts = harmap::input::InputOptions::default();
-    let (_, r) = voxelize_new_run(&Source::File(&path, &iopts), &res(96), &out, false, &Silent)
-        .unwrap();
+    let (_, r) =
+        voxelize_new_run(&Source::File(&path, &iopts), &res(96), &out, false, &Silent).unwrap();
     assert_eq!((r.components, r.genus), (1, 0));
     let rep = r.repair.expect("the horse at 96 needs a repair");
     assert!(rep.fraction < 1e-3, "{rep:?}");

@@ -9,7 +9,7 @@ use harmap::run::stages::{
 use harmap::run::RunDir;
 use harmap::trace::{SeedKind, TraceOptions};
 use harmap::voxelize::labels::NAMES;
-use harmap::voxelize::ProbeTrial;
+use harmap::voxelize::{ProbeTrial, TopologyRepair};
 use serde_json::{json, Value};
 
 use super::Global;
@@ -63,6 +63,7 @@ fn summary(attrs: &Value) -> Value {
             "probe_cavities": v.get("probe_cavities").cloned().unwrap_or(json!(0)),
             "closing_voxels": v.get("closing_voxels").cloned().unwrap_or(json!(0)),
             "handles": v.get("handles").cloned().unwrap_or(json!([])),
+            "repair": v.get("repair").cloned().unwrap_or(Value::Null),
             "center_depth_voxels": v["center_depth"],
             "inside_rule": v["inside_rule"],
         });
@@ -161,6 +162,12 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
             "topology: {} piece(s), genus {}, Euler characteristic {}, {} cavities filled ({} voxels), inside by {}",
             v["components"], v["genus"], v["euler_characteristic"], v["cavities_filled"], v["cavity_voxels"], v["inside_rule"].as_str().unwrap_or("?")
         )?;
+        if let Some(r) = v
+            .get("repair")
+            .and_then(|r| serde_json::from_value::<TopologyRepair>(r.clone()).ok())
+        {
+            writeln!(out, "repair:   {}", harmap::voxelize::repair_summary(&r))?;
+        }
         if let Some(p) = v
             .get("probe_trials")
             .and_then(|t| serde_json::from_value::<Vec<ProbeTrial>>(t.clone()).ok())

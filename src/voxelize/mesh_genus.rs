@@ -14,18 +14,20 @@ pub struct SurfaceTopology {
     pub genus: i64,
 }
 
+/// Root of `a` in the parent forest `p`, halving paths on the way.
+fn root(p: &mut [u32], mut a: u32) -> u32 {
+    while p[a as usize] != a {
+        p[a as usize] = p[p[a as usize] as usize];
+        a = p[a as usize];
+    }
+    a
+}
+
 /// Parts and genus of `mesh` (degenerate triangles skipped; the mesh is assumed closed).
 #[must_use]
 pub fn surface_topology(mesh: &TriMesh) -> SurfaceTopology {
     let nv = mesh.vertices.len();
     let mut parent: Vec<u32> = (0..nv as u32).collect();
-    fn root(p: &mut [u32], mut a: u32) -> u32 {
-        while p[a as usize] != a {
-            p[a as usize] = p[p[a as usize] as usize];
-            a = p[a as usize];
-        }
-        a
-    }
     let tris: Vec<[u32; 3]> = mesh
         .triangles
         .iter()
@@ -120,7 +122,10 @@ mod tests {
             vertices: [v1, v2].concat(),
             triangles: [t1, t2].concat(),
         };
-        assert_eq!(surface_topology(&two), SurfaceTopology { parts: 2, genus: 0 });
+        assert_eq!(
+            surface_topology(&two),
+            SurfaceTopology { parts: 2, genus: 0 }
+        );
         assert_eq!(
             surface_topology(&torus(12, 8)),
             SurfaceTopology { parts: 1, genus: 1 }

@@ -24,11 +24,11 @@ mod euler;
 mod from_volume;
 mod grid_fit;
 pub mod mesh_genus;
+mod options;
 mod prepare;
 mod probes;
 mod repair;
 mod scanline;
-mod scratch;
 pub mod simple;
 pub mod solvent;
 pub mod spheres;
@@ -38,16 +38,16 @@ mod topology;
 
 use serde::{Deserialize, Serialize};
 
-pub use classify::CenterBall;
 pub(crate) use classify::worker_bytes as label_worker_bytes;
+pub use classify::CenterBall;
 pub use error::VoxelizeError;
 pub use grid_fit::{fit_bbox, fit_volume, DEFAULT_RESOLUTION, MAX_AXIS, MAX_VOXELS, MIN_PADDING};
 pub use probes::probe_summary;
 pub use scanline::InsideRule;
-pub(crate) use scratch::scratch_grid;
+pub(crate) use options::scratch_grid;
 pub use stage::voxelize;
-pub use topology::summary as repair_summary;
 pub use standard::{standard_ball, StandardBall};
+pub use topology::summary as repair_summary;
 
 use crate::grid::{GridSpec, MemBudget};
 use crate::math::Idx3;
@@ -99,7 +99,7 @@ pub struct VoxelizeOptions {
     #[serde(default)]
     pub surface: spheres::MolSurface,
     /// Molecules: the probe radius of SAS and SES (Angstrom).
-    #[serde(default = "default_probe")]
+    #[serde(default = "options::default_probe")]
     pub probe: f64,
     /// Close the solid by a ball of this many voxels before the topology check (0: no).
     #[serde(default)]
@@ -177,10 +177,6 @@ pub struct RepairRegion {
     pub position: [f64; 3],
 }
 
-fn default_probe() -> f64 {
-    1.4
-}
-
 /// Where intermediate grids live.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -192,43 +188,6 @@ pub enum Scratch {
     Memory,
     /// Always in a memory-mapped file, read and written block by block.
     Disk,
-}
-
-impl Scratch {
-    /// Whether a grid of `voxels` bytes is kept in memory under `mem`, next to `held`
-    /// bytes that stay resident anyway (the input shape).
-    #[must_use]
-    pub fn in_memory(self, voxels: u64, mem: MemBudget, held: u64) -> bool {
-        match self {
-            Scratch::Auto => voxels <= mem.work_bytes().saturating_sub(held) / 2,
-            Scratch::Memory => true,
-            Scratch::Disk => false,
-        }
-    }
-}
-
-impl Default for VoxelizeOptions {
-    fn default() -> Self {
-        Self {
-            resolution: None,
-            spacing: None,
-            padding: 6,
-            center: None,
-            center_radius: 2.0,
-            allow_genus: false,
-            keep_largest: false,
-            chunk: 64,
-            mem: MemBudget::default(),
-            unit: None,
-            scratch: Scratch::Auto,
-            surface: spheres::MolSurface::Ses,
-            probe: 1.4,
-            close: 0,
-            probe_ladder: Vec::new(),
-            skip_handle_search: false,
-            topology: TopologyMode::Auto,
-        }
-    }
 }
 
 /// What voxelization found. Stored in the run's metadata.
@@ -310,4 +269,3 @@ pub struct ProbeTrial {
     /// Pieces of the solid left (after `--keep-largest`).
     pub components: u64,
 }
-

@@ -79,14 +79,22 @@ impl Flat {
     fn new(n: [usize; 3]) -> Self {
         let mut off = [0isize; 27];
         for (b, o) in off.iter_mut().enumerate() {
-            let (dz, dy, dx) = (b as isize / 9 - 1, (b as isize / 3) % 3 - 1, b as isize % 3 - 1);
+            let (dz, dy, dx) = (
+                b as isize / 9 - 1,
+                (b as isize / 3) % 3 - 1,
+                b as isize % 3 - 1,
+            );
             *o = (dz * n[1] as isize + dy) * n[2] as isize + dx;
         }
         Self { n, off }
     }
 
     fn zyx(&self, i: usize) -> [usize; 3] {
-        [i / (self.n[1] * self.n[2]), (i / self.n[2]) % self.n[1], i % self.n[2]]
+        [
+            i / (self.n[1] * self.n[2]),
+            (i / self.n[2]) % self.n[1],
+            i % self.n[2],
+        ]
     }
 
     /// Whether voxel `i` is on a face of the grid.
@@ -101,7 +109,11 @@ impl Flat {
         let [z, y, x] = self.zyx(i).map(|c| c as isize);
         bits.iter().filter_map(move |&b| {
             if !interior {
-                let (dz, dy, dx) = (b as isize / 9 - 1, (b as isize / 3) % 3 - 1, b as isize % 3 - 1);
+                let (dz, dy, dx) = (
+                    b as isize / 9 - 1,
+                    (b as isize / 3) % 3 - 1,
+                    b as isize % 3 - 1,
+                );
                 let (nz, ny, nx) = (z + dz, y + dy, x + dx);
                 if nz < 0
                     || ny < 0
@@ -151,8 +163,7 @@ impl Flat {
 /// Bits of the 6 face neighbours and of all 26 neighbours.
 const FACES: [usize; 6] = [4, 10, 12, 14, 16, 22];
 const ALL: [usize; 26] = [
-    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25,
-    26,
+    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25, 26,
 ];
 
 /// Grow `state`'s IN set through voxels where `allowed` holds, adding a voxel only when
@@ -198,9 +209,11 @@ fn grow(
             }
             // A new candidate must touch the set as `near` says; a waiting one may have
             // become simple whichever neighbour joined.
-            let touches = !grow_object || s & WAITING != 0 || FACES.iter().any(|&b| {
-                (i as isize - flat.off[b]) as usize == j
-            });
+            let touches = !grow_object
+                || s & WAITING != 0
+                || FACES
+                    .iter()
+                    .any(|&b| (i as isize - flat.off[b]) as usize == j);
             if touches {
                 state[j] = (s & !WAITING) | QUEUED;
                 heap.push((prio[j], Reverse(j)));
@@ -228,7 +241,11 @@ pub fn repair(store: &dyn BlockStore<u8>) -> Result<Outcome, crate::Error> {
     let seed = (0..total)
         .filter(|&i| solid[i])
         .max_by_key(|&i| (depth[i], Reverse(i)))
-        .ok_or_else(|| crate::Error::from(super::VoxelizeError::Options("no solid voxel to repair".into())))?;
+        .ok_or_else(|| {
+            crate::Error::from(super::VoxelizeError::Options(
+                "no solid voxel to repair".into(),
+            ))
+        })?;
     let mut cut = vec![0u8; total];
     cut[seed] = IN;
     grow(&flat, &mut cut, |i| solid[i], &depth, true);

@@ -22,7 +22,11 @@ pub const fn bit(dz: i64, dy: i64, dx: i64) -> u32 {
 
 /// Offsets of the 27 positions, by bit.
 const fn offset(b: usize) -> [i64; 3] {
-    [(b / 9) as i64 - 1, ((b / 3) % 3) as i64 - 1, (b % 3) as i64 - 1]
+    [
+        (b / 9) as i64 - 1,
+        ((b / 3) % 3) as i64 - 1,
+        (b % 3) as i64 - 1,
+    ]
 }
 
 /// How many coordinates of a position differ from the center's (1: face, 2: edge, 3:
@@ -192,7 +196,11 @@ mod tests {
         assert_eq!(N26.count_ones(), 26);
         assert_eq!(ADJ6[13].count_ones(), 6);
         assert_eq!(ADJ26[13].count_ones(), 26);
-        assert_eq!(ADJ26[0].count_ones(), 7, "a corner has 7 neighbours in the cube");
+        assert_eq!(
+            ADJ26[0].count_ones(),
+            7,
+            "a corner has 7 neighbours in the cube"
+        );
         assert_eq!(bit(0, 0, 0), 13);
     }
 

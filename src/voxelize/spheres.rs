@@ -42,7 +42,6 @@ pub enum MolSurface {
     Ses,
 }
 
-
 /// Write the solid of `mol` (1 inside, 0 outside) into `solid`, block by block. For the
 /// SES, returns the cavities of the probe-center space whose probes were left out (see
 /// [`super::solvent`]).

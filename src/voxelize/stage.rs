@@ -5,8 +5,8 @@ use std::time::Instant;
 use super::center_ball::check_center_ball;
 use super::prepare::{self, Prepared};
 use super::{
-    center, classify, closing, components, from_volume, scanline, scratch_grid, spheres,
-    topology, CenterBall, InsideRule, VoxelizeError, VoxelizeOptions, VoxelizeReport,
+    center, classify, closing, components, from_volume, scanline, scratch_grid, spheres, topology,
+    CenterBall, InsideRule, VoxelizeError, VoxelizeOptions, VoxelizeReport,
 };
 use crate::grid::Compression;
 use crate::input::Shape;
@@ -200,7 +200,6 @@ pub fn voxelize(
     let settled = topology::settle(&env, &closing_grid, &mut warnings, &mut |n| {
         lap(n, &mut t);
     })?;
-
 
     // 4. Center: the deepest voxel, or the one given (whose depth the same streamed
     // distance transform measures).
