@@ -176,7 +176,7 @@ fn shared_molecules_and_their_edge_cases() {
         attrs.pointer("/grid/unit").and_then(|u| u.as_str()),
         Some("angstrom")
     );
-    // Radii 0 in a PQR: table radii with a warning.
+    // Radii 0 beside real radii in a PQR: no volume, as in APBS, with a warning.
     let o = voxelize(
         &dir.join("1A80.pqr"),
         &d.path().join("a.harmap"),
@@ -184,7 +184,7 @@ fn shared_molecules_and_their_edge_cases() {
     );
     ok(&o);
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("radius 0") && err.contains("Bondi"), "{err}");
+    assert!(err.contains("radius 0") && err.contains("APBS"), "{err}");
     // Waters are left out and said so.
     let o = voxelize(
         &dir.join("1aki.pdb"),

@@ -15,10 +15,16 @@ use crate::grid::{human, MemBudget};
 /// again, next to the reader's own tables.
 const INPUT_SHARE: u64 = 3;
 
-/// The most decoded bytes an input file may have under the budget `mem`.
+/// The least the readers may hold, whatever the budget: small inputs are read under any
+/// `--mem`, so that a budget too small for the grid is refused by the stage that knows
+/// what it needs; this much is part of the fixed allowance beyond `--mem`.
+const INPUT_FLOOR: u64 = 16 << 20;
+
+/// The most decoded bytes an input file may have under the budget `mem`: a third of
+/// it, at least 16 MiB.
 #[must_use]
 pub fn input_limit(mem: MemBudget) -> u64 {
-    mem.work_bytes() / INPUT_SHARE
+    (mem.work_bytes() / INPUT_SHARE).max(INPUT_FLOOR)
 }
 
 /// Counts the bytes read from the file itself (before decompression).
