@@ -824,7 +824,7 @@ fn a_signal_during_the_trace_of_run_stops_it_and_the_printed_command_continues()
         let mut text = String::new();
         loop {
             let line = lines
-                .recv_timeout(std::time::Duration::from_secs(120))
+                .recv_timeout(std::time::Duration::from_mins(2))
                 .expect("the trace started");
             text.push_str(&line);
             text.push('\n');

@@ -1,6 +1,7 @@
 //! `harmap run`: the whole pipeline in one command. The pipeline is the library's
 //! [`harmap::pipeline::run`]; this parses the flags and prints.
 
+use std::fmt::Write as _;
 use std::path::PathBuf;
 
 use anyhow::Context;
@@ -233,7 +234,7 @@ fn stage_line(r: &PipelineReport, stage: &str) -> String {
                 v.timings.iter().map(|t| t.1).sum::<f64>()
             );
             if let Some(p) = v.probe_summary() {
-                line.push_str(&format!("\nvoxelize: {p}"));
+                let _ = write!(line, "\nvoxelize: {p}");
             }
             line
         }),

@@ -81,8 +81,8 @@ pub fn run(
     // Solve.
     let a = attrs(&run)?;
     match decide(&a, "solve", &opts.solve, run.root().join("phi").exists()) {
-        None => report.stages.push(("solve", StageRun::Skipped)),
-        Some(again) => {
+        Decision::Skip => report.stages.push(("solve", StageRun::Skipped)),
+        Decision::Run(again) => {
             if progress.interrupted() {
                 return Err(stopped("solve"));
             }
@@ -112,8 +112,8 @@ pub fn run(
     // Trace.
     let a = attrs(&run)?;
     match decide(&a, "trace", &opts.trace, run.root().join("seeds").exists()) {
-        None => report.stages.push(("trace", StageRun::Skipped)),
-        Some(again) => {
+        Decision::Skip => report.stages.push(("trace", StageRun::Skipped)),
+        Decision::Run(again) => {
             if progress.interrupted() {
                 return Err(stopped("trace"));
             }
@@ -133,8 +133,8 @@ pub fn run(
         map_opts.stop_radius = options_in::<TraceOptions>(&a, "trace").and_then(|t| t.stop_radius);
     }
     match decide(&a, "map", &map_opts, run.root().join("theta").exists()) {
-        None => report.stages.push(("map", StageRun::Skipped)),
-        Some(again) => {
+        Decision::Skip => report.stages.push(("map", StageRun::Skipped)),
+        Decision::Run(again) => {
             if progress.interrupted() {
                 return Err(stopped("map"));
             }
@@ -226,27 +226,29 @@ struct InputRecord {
     builtin: Option<String>,
 }
 
-/// `None` when `stage` is done with options `want`, fresh, and its outputs are there
-/// (skip it); else why it must run: `Some(None)` when it was not done,
-/// `Some(Some(why))` when it was and must run again.
-fn decide(
-    attrs: &Value,
-    stage: &str,
-    want: &impl Serialize,
-    outputs: bool,
-) -> Option<Option<String>> {
+/// What to do with a stage.
+enum Decision {
+    /// Done with these options, fresh, its outputs there.
+    Skip,
+    /// Run it: `None` when it was not done, else why it must run again.
+    Run(Option<String>),
+}
+
+/// Whether `stage`, wanted with options `want`, is skipped or run (see [`Decision`]);
+/// `outputs`: its outputs are in the run.
+fn decide(attrs: &Value, stage: &str, want: &impl Serialize, outputs: bool) -> Decision {
     match freshness(attrs, stage) {
-        Freshness::Missing => Some(None),
-        Freshness::Stale(why) => Some(Some(format!("out of date: {why}"))),
+        Freshness::Missing => Decision::Run(None),
+        Freshness::Stale(why) => Decision::Run(Some(format!("out of date: {why}"))),
         Freshness::Done => {
             let recorded = stage_record(attrs, stage).map_or(Value::Null, |r| r.options);
             let changed = changes(&recorded, &as_recorded(want));
             if !changed.is_empty() {
-                Some(Some(format!("its options changed: {changed}")))
+                Decision::Run(Some(format!("its options changed: {changed}")))
             } else if !outputs {
-                Some(Some("its outputs are missing".into()))
+                Decision::Run(Some("its outputs are missing".into()))
             } else {
-                None
+                Decision::Skip
             }
         }
     }

@@ -289,15 +289,15 @@ pub fn take_peak_rss() -> Option<u64> {
 mod tests {
     use super::*;
 
-    fn run_with(stages: Value) -> Value {
-        json!({"input": {"sha256": "ab"}, "grid": {"shape": [1, 1, 1]}, "stages": stages})
+    fn run_with(stages: &Value) -> Value {
+        json!({"input": {"sha256": "ab"}, "grid": {"shape": [1, 1, 1]}, "stages": stages.clone()})
     }
 
     /// A stage recorded after its input is fresh; the input run again with other
     /// options makes it (and what reads it) stale; run again alike, it is fresh again.
     #[test]
     fn a_changed_input_makes_the_stages_after_it_stale() {
-        let mut a = run_with(json!({"voxelize": {"status": "done", "options": {"r": 1}}}));
+        let mut a = run_with(&json!({"voxelize": {"status": "done", "options": {"r": 1}}}));
         let solve = |a: &Value, rtol: f64| json!({"status": "done", "options": {"rtol": rtol}, "inputs": input_digests(a, "solve")});
         a["stages"]["solve"] = solve(&a, 1e-6);
         a["stages"]["trace"] =
@@ -330,15 +330,15 @@ mod tests {
     /// fields it names.
     #[test]
     fn old_records_are_fresh_and_reports_read_by_type() {
-        let a = run_with(json!({
-            "voxelize": {"status": "done", "options": {}},
-            "solve": {"status": "done", "seconds": 2.5, "result": {"iterations": 7, "other": 1}}
-        }));
-        assert_eq!(freshness(&a, "solve"), Freshness::Done);
         #[derive(Deserialize)]
         struct Few {
             iterations: u64,
         }
+        let a = run_with(&json!({
+            "voxelize": {"status": "done", "options": {}},
+            "solve": {"status": "done", "seconds": 2.5, "result": {"iterations": 7, "other": 1}}
+        }));
+        assert_eq!(freshness(&a, "solve"), Freshness::Done);
         assert_eq!(report_in::<Few>(&a, "solve").unwrap().iterations, 7);
         assert!(report_in::<Few>(&a, "trace").is_none());
         assert!((stage_record(&a, "solve").unwrap().seconds - 2.5).abs() < 1e-12);
