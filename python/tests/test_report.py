@@ -19,6 +19,8 @@ FLAGS = [
     "--disable-component-update",
     "--disable-sync",
     "--hide-scrollbars",
+    "--disable-crash-reporter",
+    "--disable-breakpad",
 ]
 
 # Appended to a copy of the page: after load, count the images that did not decode and
@@ -35,13 +37,24 @@ window.addEventListener('load', function () {
 </script>"""
 
 
-def chrome(chromium, profile, *args, timeout=120):
-    return subprocess.run(
-        [chromium, *FLAGS, f"--user-data-dir={profile}", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
+class Output:
+    def __init__(self, stdout, stderr):
+        self.stdout, self.stderr = stdout, stderr
+
+
+def chrome(chromium, profile, *args, timeout=300):
+    # Output to files, not pipes: helper processes of Chromium may keep a pipe open
+    # after the browser has exited, and reading it to its end would then hang.
+    out, err = Path(f"{profile}.out"), Path(f"{profile}.err")
+    with out.open("w") as o, err.open("w") as e:
+        subprocess.run(
+            [chromium, *FLAGS, f"--user-data-dir={profile}", *args],
+            stdin=subprocess.DEVNULL,
+            stdout=o,
+            stderr=e,
+            timeout=timeout,
+        )
+    return Output(out.read_text(), err.read_text())
 
 
 def check_page(chromium, page, tmp_path, screenshot):
