@@ -9,6 +9,7 @@ use crate::math::{volume, Idx3};
 
 /// Whether a label takes part in the map (boundary, interior, center).
 #[must_use]
+#[inline]
 pub fn is_target(label: u8) -> bool {
     matches!(label, 1..=3)
 }
@@ -79,17 +80,20 @@ impl Directions {
 }
 
 /// Whether voxel `i` of a halo block has a direction.
+#[inline]
 pub(super) fn known(d: &[[f32; 3]], i: usize) -> bool {
     is_set(d[i])
 }
 
 /// Whether a direction (x, y, z) is set: (0, 0, 0) means "no value".
 #[must_use]
+#[inline]
 pub fn is_set(v: [f32; 3]) -> bool {
     v.iter().any(|&c| c != 0.0)
 }
 
 /// The direction of voxel `i` of a halo block (zero where it has none).
+#[inline]
 pub(super) fn get(d: &[[f32; 3]], i: usize) -> DVec3 {
     DVec3::from_array(d[i].map(f64::from))
 }

@@ -49,6 +49,7 @@ pub(super) struct Region<'a> {
 
 impl Region<'_> {
     /// Whether the cells within `m` voxels of the cell of `q` all lie in the tile.
+    #[inline]
     fn safe(&self, q: DVec3, m: i64) -> bool {
         let c = [floor(q.z), floor(q.y), floor(q.x)];
         (0..3).all(|a| {
@@ -62,6 +63,7 @@ impl Region<'_> {
     /// direction trilinearly at the foot from the corners of its cell, which all lie
     /// higher in u (else Flat, and the caller takes the one-cell upwind rule). A path
     /// that enters the stop ball takes the direction of its entry point.
+    #[inline]
     #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     pub(super) fn follow(&self, d: &[[f32; 3]], p: DVec3, ux: f64) -> Upwind {
         let reach = STEP.ceil() as i64;
@@ -127,6 +129,7 @@ impl Region<'_> {
 
 /// The one-cell upwind rule for voxel `i` (u = `ux`): on each axis the neighbour of
 /// higher u, weighted by the difference.
+#[inline]
 pub(super) fn upwind(
     u: &[f64],
     lab: &[u8],
@@ -176,6 +179,7 @@ pub(super) fn upwind(
 }
 
 /// The mean direction of the 26 neighbours of voxel `i` that have one, if any does.
+#[inline]
 pub(super) fn mean_of_neighbours(
     lab: &[u8],
     d: &[[f32; 3]],
