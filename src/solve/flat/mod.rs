@@ -1,5 +1,5 @@
 //! The multigrid passes for levels held in memory as whole arrays
-//! ([`Contiguous`](crate::grid::Contiguous) stores): the
+//! ([`Contiguous`] stores): the
 //! same operations as the block passes of [`super::multigrid`], done in place on the
 //! arrays, with no box copies and no halo recomputation.
 //!
