@@ -6,7 +6,7 @@
 //! (level units: `f = h^2 g` for `-lap u = g`); `f = 0` on the finest level, where fixed
 //! values sit in `u`. On coarser levels `u` is a correction and every node that is not an
 //! unknown holds 0. Unknowns are the voxels whose mask is
-//! [`INTERIOR`](crate::voxelize::labels::INTERIOR); they never lie on the grid's edge, so
+//! [`INTERIOR`]; they never lie on the grid's edge, so
 //! their neighbours are always inside the grid.
 //!
 //! Colors are by global index parity (`z + y + x` even is red), so a sweep gives the same

@@ -24,7 +24,8 @@ use serde_json::json;
 use sha2::{Digest, Sha256};
 
 use super::driver::History;
-use super::{SolveError, SolveOptions};
+use super::error::SolveError;
+use super::options::SolveOptions;
 use crate::grid::{BlockStore, GridError};
 use crate::progress::Progress;
 use crate::run::{write_atomic, RunDir};

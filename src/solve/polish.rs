@@ -18,7 +18,7 @@
 //! The solve's values in the region are mostly error (of either sign, and up to 1e10
 //! times the true value), so the polish starts them from 0 instead: Gauss-Seidel then
 //! fills them in from the region's border, and the relative error to remove is at most
-//! 1 rather than 1e10 or more. Values below [`FLOOR`] count as converged.
+//! 1 rather than 1e10 or more. Values below `FLOOR` (1e-24) count as converged.
 //!
 //! Out of core, block by block: a pass visits the blocks that hold region voxels in
 //! eight colour phases (the parity of the block index along each axis); the blocks of a

@@ -1,5 +1,5 @@
 //! The multigrid passes for levels held in memory as whole arrays
-//! ([`Contiguous`](crate::grid::Contiguous) stores): the
+//! ([`Contiguous`] stores): the
 //! same operations as the block passes of [`super::multigrid`], done in place on the
 //! arrays, with no box copies and no halo recomputation.
 //!
@@ -18,9 +18,10 @@
 //!
 //! Files: [`runs`] (the unknowns as runs along x, the block columns of the sums),
 //! `smooth` (red-black sweeps in place), `stats` (residual and largest change),
-//! `restrict` (full weighting of the defect), `prolong` (trilinear correction and its
-//! energy), `passes` (a V-cycle's pre- and post-smoothing passes of a level).
+//! `restrict` (full weighting of the defect), `prolong` (trilinear correction),
+//! `energy` (the correction's energy), `passes` (a V-cycle's pre- and post-smoothing passes of a level).
 
+mod energy;
 mod passes;
 mod prolong;
 mod restrict;
@@ -33,8 +34,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use crate::grid::{Contiguous, GridSpec};
 use crate::parallel::Pool;
 
-pub use prolong::PlanePair;
-pub use runs::Runs;
+use prolong::PlanePair;
+use runs::{dims, Runs};
 
 /// What the whole-array passes of a level keep between passes: the runs of its
 /// unknowns (built on first use), whether both generations hold the fixed values, and
@@ -70,16 +71,6 @@ impl Cache {
     pub fn state_replaced(&self) {
         self.fixed_in_both.store(false, Ordering::Relaxed);
     }
-}
-
-/// Planes per slab when `n` planes are cut into slabs for the whole-array passes: about
-/// eight slabs per thread (work stealing evens out slabs of unequal work).
-pub(super) fn slab_planes(n: usize) -> usize {
-    n.div_ceil(8 * rayon::current_num_threads()).max(1)
-}
-
-pub(super) fn dims(spec: &GridSpec) -> [usize; 3] {
-    spec.shape.map(|c| c as usize)
 }
 
 /// A level held as whole arrays.

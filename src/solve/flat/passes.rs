@@ -7,9 +7,10 @@ use rayon::prelude::*;
 
 use super::prolong::prolong_add;
 use super::restrict::restrict;
+use super::runs::dims;
 use super::smooth::sweeps;
 use super::stats::block_stats;
-use super::{dims, Flat};
+use super::Flat;
 
 impl Flat<'_> {
     /// Pre-smoothing: generation 1 = generation 0 after `n` sweeps; with `measure`, the
@@ -29,7 +30,7 @@ impl Flat<'_> {
         let mut u1 = self.u[1].array_mut();
         // Generation 1 holds the fixed values once it has been written whole.
         let fixed = self.cache.fixed_in_both.swap(true, Ordering::Relaxed);
-        sweeps(&mut u1, Some((&u0, fixed)), self.cache, f, shape, n);
+        sweeps(&mut u1, Some((&u0, fixed)), self.runs(), f, shape, n);
         drop(u0);
         let cmask = coarse.mask.array();
         let mut cf = coarse
@@ -81,7 +82,7 @@ impl Flat<'_> {
                 &self.cache.prolong,
             );
         }
-        sweeps(&mut u1, None, self.cache, f, shape, n);
+        sweeps(&mut u1, None, self.runs(), f, shape, n);
         let mut u0 = self.u[0].array_mut();
         // The result becomes generation 0; generation 1 keeps the old state, which the
         // next pre-smoothing overwrites.

@@ -2,8 +2,7 @@
 
 use rayon::prelude::*;
 
-use super::runs::Runs;
-use super::slab_planes;
+use super::runs::{slab_planes, Runs};
 use crate::parallel::Pool;
 use crate::solve::stencil::{defect_at, full_weighting};
 use crate::voxelize::labels::INTERIOR;

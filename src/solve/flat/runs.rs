@@ -3,7 +3,6 @@
 
 use rayon::prelude::*;
 
-use super::dims;
 use crate::grid::GridSpec;
 use crate::voxelize::labels::INTERIOR;
 
@@ -116,6 +115,16 @@ impl Columns {
             })
             .sum()
     }
+}
+
+/// Planes per slab when `n` planes are cut into slabs for the whole-array passes: about
+/// eight slabs per thread (work stealing evens out slabs of unequal work).
+pub(super) fn slab_planes(n: usize) -> usize {
+    n.div_ceil(8 * rayon::current_num_threads()).max(1)
+}
+
+pub(super) fn dims(spec: &GridSpec) -> [usize; 3] {
+    spec.shape.map(|c| c as usize)
 }
 
 #[cfg(test)]

@@ -2,8 +2,7 @@
 
 use rayon::prelude::*;
 
-use super::runs::Runs;
-use super::{slab_planes, Cache};
+use super::runs::{slab_planes, Runs};
 use crate::solve::stencil::defect_of;
 
 /// One red-black half-sweep of `color` over the whole grid, in place. `f`: the
@@ -141,15 +140,11 @@ impl Rows<'_> {
 pub(super) fn sweeps(
     u: &mut [f64],
     src: Option<(&[f64], bool)>,
-    cache: &Cache,
+    runs: &Runs,
     f: Option<&[f64]>,
     shape: [usize; 3],
     n: usize,
 ) {
-    let runs = cache
-        .runs
-        .get()
-        .expect("runs are built with the level's Flat");
     for k in 0..n {
         match src {
             Some((src, fixed)) if k == 0 => relax_from(u, src, fixed, runs, f, shape, 0, 1.0),

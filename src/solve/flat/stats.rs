@@ -3,8 +3,7 @@
 
 use rayon::prelude::*;
 
-use super::runs::{Columns, Runs};
-use super::{dims, slab_planes};
+use super::runs::{dims, slab_planes, Columns, Runs};
 use crate::grid::GridSpec;
 use crate::solve::stencil::defect_at;
 
