@@ -101,12 +101,13 @@ pub fn read_bytes_within(path: &Path, limit: u64) -> Result<Vec<u8>, InputError>
         }
     })?;
     if out.len() as u64 > limit {
-        let lines = out.iter().filter(|&&b| b == b'\n').count() as u64;
+        // Pieces between line ends: the number of the line reached.
+        let line = out.split(|&b| b == b'\n').count() as u64;
         return Err(InputError::TooLarge {
             path: path.to_owned(),
             seen: human(out.len() as u64),
             position: read.get(),
-            line: lines + 1,
+            line,
             limit: human(limit),
         });
     }

@@ -122,10 +122,12 @@ pub fn export_image(
     let mut out = Staged::create(dest)?;
     match format {
         ImageFormat::Nifti => {
-            nifti::write(&mut out, run, &spec, fields[0], &sources[0], dest, progress)?
+            nifti::write(&mut out, run, &spec, fields[0], &sources[0], dest, progress)?;
         }
         ImageFormat::Vti => vti::write(&mut out, &spec, fields, &sources, dest, progress)?,
-        ImageFormat::Dx => dx::write(&mut out, run, &spec, fields[0], &sources[0], mem, progress)?,
+        ImageFormat::Dx => {
+            dx::write(&mut out, run, &spec, fields[0], &sources[0], mem, progress)?;
+        }
     }
     out.commit()?;
     Ok(spec.num_voxels())
