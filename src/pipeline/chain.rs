@@ -349,7 +349,7 @@ mod tests {
         let new = json!({"method": "sor", "rtol": 1e-6, "rk": {"atol": 1e-5}});
         assert_eq!(
             changes(&old, &new),
-            "method \"multigrid\" -> \"sor\", rk.atol 1e-8 -> 1e-5"
+            "method \"multigrid\" -> \"sor\", rk.atol 1e-8 -> 0.00001"
         );
         assert_eq!(changes(&old, &old), "");
     }
