@@ -39,6 +39,7 @@ use harmap::trace::surface::Boundary;
 /// Offset (voxels) of the two extra seeds around each vertex.
 const D: f64 = 1e-4;
 
+#[allow(clippy::too_many_lines, clippy::many_single_char_names)] // one diagnostic table, its columns named as in docs/trace.md
 fn report(run: &RunDir, name: &str, rk: Rk45) -> Result<(), harmap::Error> {
     let opts = TraceOptions {
         seeds: SeedKind::Surface,

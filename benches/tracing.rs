@@ -30,6 +30,7 @@ fn center() -> DVec3 {
 
 /// u over the tile's box with its margin: 1 - phi of a point sink inside the ball, 0 on
 /// the boundary voxels, the exterior layers below 0, NaN beyond them.
+#[allow(clippy::many_single_char_names)] // the grid's axes z, y, x and the sink's coordinates
 fn u_block() -> Block<f64> {
     let m = U_MARGIN as i64;
     let n = N + 2 * U_MARGIN;
@@ -56,6 +57,7 @@ fn u_block() -> Block<f64> {
     u
 }
 
+#[allow(clippy::many_single_char_names)] // the grid's axes z, y, x and the sink's coordinates
 fn bench(c: &mut Criterion) {
     let u = u_block();
     let mut g = c.benchmark_group("tracing");

@@ -1,4 +1,6 @@
 //! Integration tests: one binary, topic modules.
+// Tests build grids in z, y, x loops and spell their cases out in full.
+#![allow(clippy::many_single_char_names, clippy::too_many_lines)]
 
 mod cli;
 mod common;

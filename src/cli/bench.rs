@@ -96,6 +96,7 @@ pub fn peak_rss() -> u64 {
 }
 
 /// Run `harmap bench`.
+#[allow(clippy::many_single_char_names)] // n, the grid size, as the benchmark tables name it
 pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     match a.stage {
         Stage::Solve => return bench_solve(a, g),

@@ -99,6 +99,7 @@ fn summary(attrs: &Value) -> Value {
 }
 
 /// Run `harmap info`.
+#[allow(clippy::too_many_lines)] // one summary line per stage and field, in the order they print
 pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
     let run = RunDir::open(&a.run).map_err(harmap::Error::from)?;
     let attrs = run.attrs().map_err(harmap::Error::from)?;

@@ -6,6 +6,7 @@
 
 mod atlas;
 mod bench;
+mod exit;
 mod export;
 mod info;
 mod inverse;
@@ -14,6 +15,7 @@ mod progress;
 mod report;
 mod run;
 mod solve;
+mod threads;
 mod trace;
 mod voxelize;
 
@@ -22,6 +24,8 @@ use std::io::Write;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand, ValueEnum};
+use exit::{exit_code, is_broken_pipe};
+use threads::cap_threads;
 
 /// Out-of-core harmonic volumetric parameterization: map a genus-0 solid onto the ball.
 ///
@@ -136,56 +140,6 @@ pub fn main() -> ExitCode {
     }
 }
 
-fn is_broken_pipe(e: &anyhow::Error) -> bool {
-    e.chain().any(|c| {
-        c.downcast_ref::<std::io::Error>()
-            .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
-    })
-}
-
-fn exit_code(e: &anyhow::Error) -> u8 {
-    for c in e.chain() {
-        if c.downcast_ref::<UsageError>().is_some() {
-            return 2;
-        }
-        if let Some(s) = c.downcast_ref::<run::Stopped>() {
-            return s.code;
-        }
-        if let Some(h) = c.downcast_ref::<harmap::Error>() {
-            if let harmap::Error::Solve(
-                harmap::solve::SolveError::Interrupted { .. }
-                | harmap::solve::SolveError::InterruptedPolish { .. },
-            ) = h
-            {
-                return 130;
-            }
-            return if h.is_bad_input() { 2 } else { 1 };
-        }
-    }
-    1
-}
-
-/// `--threads` beyond this many times the cores only costs: each worker holds its own
-/// buffers within `--mem`, and ten thousand threads spent minutes starting and
-/// contending on a 64^3 grid that takes 0.08 s.
-const THREADS_PER_CORE: usize = 4;
-
-/// The thread count to use for `--threads n` on a machine of `cores`: at most
-/// [`THREADS_PER_CORE`] per core, with the warning to print when capped.
-fn cap_threads(n: usize, cores: usize) -> (usize, Option<String>) {
-    let cap = THREADS_PER_CORE * cores.max(1);
-    if n > cap {
-        (
-            cap,
-            Some(format!(
-                "--threads {n} is more than {THREADS_PER_CORE} per core on this machine of {cores} cores: using {cap} (results are the same for any count)"
-            )),
-        )
-    } else {
-        (n, None)
-    }
-}
-
 fn run(cli: Cli) -> anyhow::Result<()> {
     if let Some(n) = cli.threads {
         if n == 0 {
@@ -222,19 +176,5 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Info(a) => info::run(&a, &global),
         Command::Report(a) => report::run(&a, &global),
         Command::Bench(a) => bench::run(&a, &global),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn threads_are_capped_with_a_warning() {
-        assert_eq!(cap_threads(8, 2), (8, None));
-        let (n, w) = cap_threads(10_000, 2);
-        assert_eq!(n, 8);
-        assert!(w.is_some_and(|w| w.contains("10000") && w.contains("using 8")));
-        assert_eq!(cap_threads(3, 0).0, 3);
     }
 }

@@ -9,6 +9,7 @@ use harmap::input::InputOptions;
 use harmap::pipeline::{PipelineError, PipelineOptions, PipelineReport, Source, StageRun};
 use harmap::trace::{Rk45, SeedKind};
 
+use super::exit::{exit_code_of, shell_words, Stopped};
 use super::map::MapArgs;
 use super::progress::{catch_signals, Bars};
 use super::solve::SolveArgs;
@@ -63,43 +64,6 @@ pub struct Args {
     pub trace_rtol: f64,
     #[command(flatten)]
     pub map: MapArgs,
-}
-
-/// A stage stopped by a signal: exit with `code`, after printing `message`.
-#[derive(Debug, thiserror::Error)]
-#[error("{message}")]
-pub struct Stopped {
-    /// The exit code: 128 + the signal's number (130 for SIGINT, 143 for SIGTERM).
-    pub code: u8,
-    /// What stopped and the command that continues.
-    pub message: String,
-}
-
-/// The exit code for a stop by signal `signal` (130 when it is not known).
-#[must_use]
-pub fn exit_code_of(signal: usize) -> u8 {
-    match signal {
-        1..=127 => 128 + signal as u8,
-        _ => 130,
-    }
-}
-
-/// `args` as one POSIX shell command line (arguments with spaces or quotes quoted).
-#[must_use]
-pub fn shell_words(args: &[String]) -> String {
-    args.iter()
-        .map(|a| {
-            let plain = !a.is_empty()
-                && a.chars()
-                    .all(|c| c.is_ascii_alphanumeric() || "-_./=,:+@%".contains(c));
-            if plain {
-                a.clone()
-            } else {
-                format!("'{}'", a.replace('\'', r"'\''"))
-            }
-        })
-        .collect::<Vec<_>>()
-        .join(" ")
 }
 
 /// Run `harmap run`.

@@ -178,8 +178,8 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         })) => {
             // The library's hint names the run only; the checkpoint is for these
             // options, so the command that continues it repeats them.
-            return Err(super::run::Stopped {
-                code: super::run::exit_code_of(interrupt.signal()),
+            return Err(super::exit::Stopped {
+                code: super::exit::exit_code_of(interrupt.signal()),
                 message: format!(
                     "interrupted after {iterations} iterations; the state is checkpointed in {}; continue with `{}`",
                     path.display(),
@@ -206,5 +206,5 @@ fn continue_command(resume: bool) -> String {
     if resume {
         args.push("--resume".into());
     }
-    super::run::shell_words(&args)
+    super::exit::shell_words(&args)
 }

@@ -164,6 +164,7 @@ pub enum ScratchArg {
     Disk,
 }
 
+#[allow(clippy::many_single_char_names)] // x, y, z as the user types them
 fn parse_point(s: &str) -> Result<[f64; 3], String> {
     let v: Vec<f64> = s
         .split(',')
@@ -178,6 +179,7 @@ fn parse_point(s: &str) -> Result<[f64; 3], String> {
     }
 }
 
+#[allow(clippy::many_single_char_names)] // x, y, z as the user types them
 fn parse_shape(s: &str) -> Result<[u64; 3], String> {
     let v: Vec<u64> = s
         .split(',')

@@ -1,5 +1,5 @@
 //! Exports of a run's results for other tools: the seed table as CSV ([`seeds_csv`]), the
-//! boundary -> sphere map as an OBJ mesh ([`obj_sphere`]), the streamlines as VTK legacy
+//! boundary -> sphere map as an OBJ mesh ([`obj_sphere`](mod@obj_sphere)), the streamlines as VTK legacy
 //! polydata ([`vtk_streamlines`]), and the fields as images ([`image`]: NIfTI-1, VTK
 //! image data, OpenDX, OME-Zarr).
 //!
@@ -17,6 +17,7 @@
 
 mod csv;
 pub mod image;
+mod marks;
 mod obj_sphere;
 mod safety;
 mod staged;

@@ -1,4 +1,6 @@
 //! The boundary -> sphere map as an OBJ mesh.
+// Index arithmetic over the grid's axes: z, y, x and i, j, k read as in the formulas.
+#![allow(clippy::many_single_char_names)]
 
 use std::fmt::Write as _;
 use std::io::Write;

@@ -5,7 +5,7 @@
 //!   [`ZarrStore`] (kept arrays), [`MmapStore`] (scratch files), [`MemStore`] and
 //!   [`FlatStore`] (memory); capabilities a backend may offer: [`Contiguous`] (the
 //!   whole grid as one array) and [`BlockStore::map_block`] (blocks read in place).
-//! - [`scratch`]: the one factory of scratch grids, in memory or in a file
+//! - [`scratch()`]: the one factory of scratch grids, in memory or in a file
 //!   ([`Residence`]).
 //! - [`Scalar`]: the element types, plain numbers ([`bytemuck::Pod`]), sealed.
 //! - [`MemBudget`]: the `--mem` bound on what a run holds resident.

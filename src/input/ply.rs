@@ -26,6 +26,7 @@ const FACE_LISTS: [&str; 2] = ["vertex_indices", "vertex_index"];
 /// Faces with more than three corners are fan-triangulated; properties other than the
 /// coordinates and the face list, and elements other than `vertex` and `face`, are
 /// skipped.
+#[allow(clippy::too_many_lines)] // one pass over the PLY header and body, element by element
 pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<TriMesh, InputError> {
     if bytes.iter().all(u8::is_ascii_whitespace) {
         return Err(InputError::invalid(

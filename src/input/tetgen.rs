@@ -124,6 +124,7 @@ struct Nodes {
 
 /// Parse a `.node` file: `<#points> <dim> <#attributes> <#markers>`, then
 /// `<index> <x> <y> <z> [attributes] [marker]` per point.
+#[allow(clippy::too_many_lines)] // the .node header, its attributes and rows in one pass with one error context
 fn parse_node(path: &Path, bytes: &[u8]) -> Result<Nodes, InputError> {
     let mut recs = records(path, bytes);
     let Some(head) = recs.next() else {

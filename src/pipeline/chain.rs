@@ -24,6 +24,7 @@ use crate::trace::TraceOptions;
 /// options. When `progress`'s interrupt is set, the stage running stops at its next
 /// block, tile or iteration and [`PipelineError::Interrupted`] is returned: running
 /// the same pipeline again continues.
+#[allow(clippy::too_many_lines)] // the stages in their order, each with its skip, re-run and interrupt checks
 pub fn run(
     source: &Source<'_>,
     opts: &PipelineOptions,

@@ -372,7 +372,7 @@ enum MeshValue {
 /// A node's value from the input mesh (see the module's notes), if the mesh explains it:
 /// a boundary node within a voxel of the surface (its depth d and outward normal n, the
 /// direction to its nearest surface point: `u = d / (1 + d) * u(b - n)`, as from the
-/// smoothed solid), an exterior node within [`nearest::RADIUS`] (its inward normal, the
+/// smoothed solid), an exterior node within [`nearest::RADIUS`](crate::trace::nearest::RADIUS) (its inward normal, the
 /// direction to its nearest surface point).
 #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 fn from_mesh(

@@ -7,6 +7,8 @@
 //! 1-D distance along z, then runs the lower-envelope transform of Felzenszwalb and
 //! Huttenlocher along y and x within the slice: the exact squared Euclidean distance.
 //! Resident: a few slices (`O(ny * nx)`), never the grid.
+// Index arithmetic over the grid's axes: z, y, x and i, j, k read as in the formulas.
+#![allow(clippy::many_single_char_names)]
 
 use std::fs::OpenOptions;
 use std::os::unix::fs::FileExt;
@@ -35,6 +37,7 @@ const FAR: u32 = 1 << 16;
 /// The deepest solid voxel and its distance (voxels) to the nearest non-solid voxel.
 /// Ties go to the lowest `[z, y, x]` in C order. With `query`, also the distance of that
 /// voxel (0 when it is not solid).
+#[allow(clippy::too_many_lines)] // the distance transform's three passes share the block buffers
 pub fn deepest_voxel(
     store: &dyn BlockStore<u8>,
     scratch: &Path,

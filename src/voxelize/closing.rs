@@ -11,6 +11,8 @@
 //! raises the Euler characteristic by one, so [`handles`] measures, for the largest
 //! pieces, the change of the Euler characteristic that each alone makes: that is where
 //! the handles are.
+// Index arithmetic over the grid's axes: z, y, x and i, j, k read as in the formulas.
+#![allow(clippy::many_single_char_names)]
 
 use super::components;
 use crate::grid::BlockStore;

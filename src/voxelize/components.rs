@@ -156,6 +156,7 @@ impl Uf {
 }
 
 /// Find the 6-connected components of `{v : pred(v)}` over the whole grid.
+#[allow(clippy::too_many_lines)] // the union-find's block pass and its merge across faces share the labels
 pub fn find(
     store: &dyn BlockStore<u8>,
     pred: fn(u8) -> bool,

@@ -2,6 +2,8 @@
 //! connected part (triangles sharing vertices), chi = V - E + F, and a closed orientable
 //! surface of genus g has chi = 2 - 2 g. What the voxel solid should be follows from it:
 //! a mesh of genus-0 parts makes a solid whose handles are discretization artifacts.
+// Index arithmetic over the grid's axes: z, y, x and i, j, k read as in the formulas.
+#![allow(clippy::many_single_char_names)]
 
 use crate::input::TriMesh;
 

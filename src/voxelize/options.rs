@@ -1,7 +1,7 @@
 //! Defaults of the options, and where scratch grids live.
 
 use super::{spheres, Scratch, TopologyMode, VoxelizeOptions};
-use crate::grid::{BlockStore, GridSpec, MemBudget, MemStore, MmapStore};
+use crate::grid::{BlockStore, GridSpec, MemBudget, Residence};
 
 /// The default probe radius (Angstrom), for runs recorded before it was an option.
 pub(super) fn default_probe() -> f64 {
@@ -58,11 +58,11 @@ pub(crate) fn scratch_grid(
         path: dir.to_owned(),
         source: e,
     })?;
-    if in_memory {
-        return Ok(Box::new(MemStore::<u8>::new(spec.clone(), 0)));
-    }
-    Ok(Box::new(MmapStore::<u8>::create(
-        &dir.join(name),
-        spec.clone(),
-    )?))
+    let path = dir.join(name);
+    let at = if in_memory {
+        Residence::Blocks
+    } else {
+        Residence::File(&path)
+    };
+    Ok(crate::grid::scratch(spec, 0u8, at)?)
 }

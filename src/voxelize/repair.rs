@@ -19,6 +19,8 @@
 //!
 //! Memory: the whole grid in memory, [`BYTES_PER_VOXEL`] bytes a voxel at the peak
 //! (solid, growth state, depths and the distance transform's work), plus the queue.
+// Index arithmetic over the grid's axes: z, y, x and i, j, k read as in the formulas.
+#![allow(clippy::many_single_char_names)]
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -224,6 +226,7 @@ fn grow(
 
 /// Repair the solid `{v == 1}` of `store` in place (1 solid, 0 background): returns
 /// what changed. The caller checks the topology afterwards.
+#[allow(clippy::too_many_lines)] // the two growths and the choice between them share the depth buckets
 pub fn repair(store: &dyn BlockStore<u8>) -> Result<Outcome, crate::Error> {
     let spec = store.spec().clone();
     let n = spec.shape.map(|c| c as usize);

@@ -13,6 +13,8 @@
 //!   their union; inward-wound meshes (winding -1) work too.
 //! - [`InsideRule::Parity`] (closed, inconsistently oriented): inside where the number of
 //!   crossings is odd.
+// Index arithmetic over the grid's axes: z, y, x and i, j, k read as in the formulas.
+#![allow(clippy::many_single_char_names)]
 
 use robust::{orient2d, Coord};
 
@@ -170,6 +172,7 @@ pub fn mesh_solid(
 
 /// Fill one block column and write its blocks. Returns the count of unclosed rows.
 #[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_lines)] // one scanline column: crossings, parity and runs in one loop
 fn column(
     spec: &GridSpec,
     tris: &[Tri],

@@ -13,6 +13,8 @@
 //! x is simple iff both are 1. The neighbourhood is a 27-bit mask, bit
 //! `(dz + 1) * 9 + (dy + 1) * 3 + (dx + 1)`; bit 13 (x itself) is ignored. Components are
 //! flooded over bit masks with precomputed adjacency, a few dozen word operations.
+// Index arithmetic over the grid's axes: z, y, x and i, j, k read as in the formulas.
+#![allow(clippy::many_single_char_names)]
 
 /// Bit of the neighbour at offset `(dz, dy, dx)`, each in -1..=1.
 #[must_use]

@@ -32,6 +32,8 @@
 //! Cost: one pass over every atom's samples (as many as the block pass tests) with a
 //! k-d tree of each atom's free samples, before the blocks; memory per worker is one
 //! atom's samples, and for the whole molecule a few numbers per patch.
+// Index arithmetic over the grid's axes: z, y, x and i, j, k read as in the formulas.
+#![allow(clippy::many_single_char_names)]
 
 use std::collections::HashMap;
 

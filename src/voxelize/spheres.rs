@@ -16,6 +16,8 @@
 //!
 //! A block needs the atoms within its box grown by the largest radius plus two probe
 //! radii, and the probe centers within one probe radius of the box: nothing else.
+// Index arithmetic over the grid's axes: z, y, x and i, j, k read as in the formulas.
+#![allow(clippy::many_single_char_names)]
 
 use glam::DVec3;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -80,6 +82,7 @@ pub fn molecule_solid(
     Ok(cavities)
 }
 
+#[allow(clippy::too_many_lines)] // one block's solid: the atoms, their samples and the fill share the buffers
 fn block_solid(
     spec: &GridSpec,
     b: Idx3,

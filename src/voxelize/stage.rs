@@ -16,6 +16,7 @@ use crate::run::RunDir;
 
 /// Voxelize `shape` into the run directory `run` (which must be new): writes
 /// `labels/0` and returns the report. The caller records it in the run's attributes.
+#[allow(clippy::too_many_lines)] // the stage's passes in order; each pass is a call, the rest is their bookkeeping
 pub fn voxelize(
     shape: &Shape,
     source_name: &str,

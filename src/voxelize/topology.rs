@@ -99,6 +99,7 @@ fn measure(env: &Env, keep_largest: bool) -> Result<(u64, i64, Vec<u64>, u64, u6
 /// Count pieces and genus, then go on, refuse or repair as the options and the input
 /// say. `closing_grid` gives the scratch grid of the handle search; `lap` records a
 /// pass's time.
+#[allow(clippy::too_many_lines)] // the topology checks and the repair decision read the same counts
 pub(super) fn settle(
     env: &Env,
     closing_grid: &ClosingGrid,

@@ -1,6 +1,8 @@
 //! OpenDX scalar field (text), as APBS writes them (counts nx ny nz, z fastest): for
 //! VMD, PyMOL and APBS tools. The first line, a comment ending in `(harmap)`, marks the
 //! file as harmap's own export.
+// Index arithmetic over the grid's axes: z, y, x and i, j, k read as in the formulas.
+#![allow(clippy::many_single_char_names)]
 
 use std::io::Write;
 

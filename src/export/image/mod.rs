@@ -139,8 +139,8 @@ pub fn export_image(
 pub fn is_own_image(path: &Path, format: ImageFormat) -> bool {
     match format {
         ImageFormat::Nifti => nifti::is_own(path),
-        ImageFormat::Vti => crate::export::safety::starts_with_line(path, 1, vti::MARK),
-        ImageFormat::Dx => crate::export::safety::first_line(path)
+        ImageFormat::Vti => crate::export::marks::starts_with_line(path, 1, vti::MARK),
+        ImageFormat::Dx => crate::export::marks::first_line(path)
             .is_some_and(|l| l.starts_with("# ") && l.ends_with("(harmap)")),
     }
 }

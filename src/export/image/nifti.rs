@@ -2,6 +2,8 @@
 //! (348 bytes, then a 4-byte extension flag, data at byte 352, x fastest), with the
 //! affine that puts each voxel at its world position. The header's `descrip` starts with
 //! `harmap `, which marks the file as harmap's own export.
+// Index arithmetic over the grid's axes: z, y, x and i, j, k read as in the formulas.
+#![allow(clippy::many_single_char_names)]
 
 use std::io::Write;
 use std::path::Path;

@@ -1,4 +1,6 @@
 //! PDB: ATOM/HETATM records by their fixed columns (the rules in [`super`]).
+// Index arithmetic over the grid's axes: z, y, x and i, j, k read as in the formulas.
+#![allow(clippy::many_single_char_names)]
 
 use std::collections::BTreeMap;
 
@@ -32,6 +34,7 @@ fn column<'t>(
 }
 
 /// Read the atoms of a PDB file.
+#[allow(clippy::too_many_lines)] // one pass over the file's columns, each field parsed where it stands
 pub(super) fn read_pdb(
     r: &Reader<'_>,
     text: &str,

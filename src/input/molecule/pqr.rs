@@ -1,4 +1,6 @@
 //! PQR: whitespace-separated ATOM/HETATM records ending in x, y, z, charge and radius.
+// Index arithmetic over the grid's axes: z, y, x and i, j, k read as in the formulas.
+#![allow(clippy::many_single_char_names)]
 
 use std::collections::BTreeMap;
 

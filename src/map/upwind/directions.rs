@@ -4,7 +4,7 @@
 use glam::DVec3;
 
 use super::HALO;
-use crate::grid::{BlockStore, GridError, MemStore, MmapStore};
+use crate::grid::{BlockStore, GridError, Residence};
 use crate::math::{volume, Idx3};
 
 /// Whether a label takes part in the map (boundary, interior, center).
@@ -35,14 +35,13 @@ impl Directions {
         in_memory: bool,
     ) -> Result<Self, GridError> {
         let mk = |n: &str| -> Result<Box<dyn BlockStore<f32>>, GridError> {
-            Ok(if in_memory {
-                Box::new(MemStore::<f32>::new(spec.clone(), 0.0))
+            let path = dir.join(format!("{n}.f32"));
+            let at = if in_memory {
+                Residence::Blocks
             } else {
-                Box::new(MmapStore::<f32>::create(
-                    &dir.join(format!("{n}.f32")),
-                    spec.clone(),
-                )?)
-            })
+                Residence::File(&path)
+            };
+            crate::grid::scratch(spec, 0.0f32, at)
         };
         Ok(Self {
             c: [mk("x")?, mk("y")?, mk("z")?],

@@ -1,5 +1,7 @@
 //! The solve's convergence history as an inline SVG: the relative residual and the
 //! largest change of each iteration on a log axis, with the stop tolerance.
+// Index arithmetic over the grid's axes: z, y, x and i, j, k read as in the formulas.
+#![allow(clippy::many_single_char_names)]
 
 use std::fmt::Write as _;
 
@@ -24,6 +26,7 @@ const BOTTOM: f64 = 44.0;
 /// with a dashed horizontal line at `target` when it is positive. None when no series
 /// has a positive value.
 #[must_use]
+#[allow(clippy::too_many_lines)] // one SVG plot: axes, ticks, series and legend share one coordinate frame
 pub fn log_history(series: &[Series<'_>], target: Option<f64>) -> Option<String> {
     let positive = |v: f64| v.is_finite() && v > 0.0;
     let mut lo = f64::INFINITY;

@@ -5,6 +5,8 @@
 //! most [`MAX_SIDE`] pixels, enlarged by an integer factor when the grid is small, and
 //! drawn with the second grid axis up. Voxels where the field is undefined (NaN: outside
 //! the problem, or not mapped) are light gray.
+// Index arithmetic over the grid's axes: z, y, x and i, j, k read as in the formulas.
+#![allow(clippy::many_single_char_names)]
 
 use plotters::style::colors::colormaps::{ColorMap, ViridisRGB};
 use plotters::style::RGBColor;

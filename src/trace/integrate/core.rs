@@ -15,7 +15,7 @@ pub(super) fn owns(lo: [i64; 3], hi: [i64; 3], p: DVec3) -> bool {
 }
 
 /// What both ways of stepping work with: the tile, its core `[lo, hi)`, the integrator
-/// and the stop ball (see [`advance`]).
+/// and the stop ball (see [`advance`](super::advance)).
 #[derive(Clone, Copy)]
 pub(super) struct Core<'a> {
     pub(super) tile: &'a Tile,
@@ -27,7 +27,7 @@ pub(super) struct Core<'a> {
 
 /// How one way of stepping left a streamline.
 pub(super) enum Leg {
-    /// As [`advance`] returns it.
+    /// As [`advance`](super::advance) returns it.
     Ended(Advance),
     /// It goes on with the other way of stepping (`line.level` says which).
     Switch,

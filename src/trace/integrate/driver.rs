@@ -13,8 +13,8 @@ use crate::trace::field::{NoDirection, Tile};
 /// core. `path`, when given, receives every accepted point.
 ///
 /// A streamline takes its own RK45 steps, with error control. With a
-/// [`Rk45::level_step`], after [`LEVEL_AFTER`] voxels it steps on levels of ln u
-/// instead ([`on_levels`]), and back on its own steps wherever it cannot.
+/// [`Rk45::level_step`], after [`LEVEL_AFTER`](super::LEVEL_AFTER) voxels it steps on levels of ln u
+/// instead ([`on_levels`](super::levels::on_levels)), and back on its own steps wherever it cannot.
 pub fn advance(
     line: &mut Line,
     tile: &Tile,

@@ -62,7 +62,7 @@ pub struct Line {
     pub steps: u32,
     /// Arc length so far (voxels).
     pub length: f64,
-    /// Escapes from flat sheets so far (see [`advance`]).
+    /// Escapes from flat sheets so far (see [`advance`](super::advance)).
     pub escapes: u16,
     /// On levels: the level k (ln u = k * level_step) the line is stepping to.
     pub level: Option<i32>,

@@ -23,7 +23,7 @@ pub struct Rk45 {
     /// Stepping on levels of ln u (u = 1 - phi), 0 for off: after [`LEVEL_AFTER`]
     /// voxels on its own steps, a streamline takes fixed steps of this much ln u (4th
     /// order Runge-Kutta), each ending on the level `ln u = k * level_step`, so that
-    /// neighbouring streamlines stay level with each other (see [`advance`]).
+    /// neighbouring streamlines stay level with each other (see [`advance`](super::advance)).
     #[serde(default)]
     pub level_step: f64,
     /// Arc length (voxels) on RK45's own steps before a streamline steps on levels
@@ -155,7 +155,7 @@ impl Rk45 {
 
     /// How far (voxels, per axis) from a step's start its stage points may lie: steps
     /// whose stages stray farther are rejected, so a tile needs this many nodes of halo
-    /// around the points it owns, plus the spline's reach ([`super::tiles::Tiling::halo_for`]).
+    /// around the points it owns, plus the spline's reach ([`Tiling::halo_for`](crate::trace::tiles::Tiling::halo_for)).
     #[must_use]
     pub fn reach(&self) -> f64 {
         1.5 * self.h_max

@@ -60,7 +60,7 @@ pub(super) fn resume(
 
 /// Stage `s` (1 to 6) of an RK45 step of `h` from `p`, with the stages before it in
 /// `k`: the field at the stage point, or why there is none (Outside for a point more
-/// than [`Rk45::reach`] from `p`, beyond what the tile must hold).
+/// than [`Rk45::reach`](super::Rk45::reach) from `p`, beyond what the tile must hold).
 #[inline]
 #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
 pub(super) fn stage(
