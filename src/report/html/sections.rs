@@ -438,7 +438,7 @@ pub(super) fn map_section(p: &mut String, a: &Value) {
     p.push_str("</section>\n");
 }
 
-/// The atlas and the sphere view, drawn by [`super::atlas`] into a private temporary
+/// The atlas and the sphere view, drawn by [`crate::report::atlas`] into a private temporary
 /// directory and embedded.
 pub(super) fn pictures_section(p: &mut String, run: &RunDir, a: &Value) {
     if !crate::run::stage_done(a, "trace") {
