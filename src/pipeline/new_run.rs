@@ -187,7 +187,7 @@ fn record_voxelize(
         let stages = a.entry("stages").or_insert_with(|| json!({}));
         stages["voxelize"] =
             json!({"status": "done", "seconds": seconds, "options": options, "result": result});
-        if let Some(peak) = crate::run::take_peak_rss() {
+        if let Some(peak) = crate::run::peak_rss() {
             stages["voxelize"]["peak_rss_bytes"] = json!(peak);
         }
     })?;

@@ -191,7 +191,7 @@ impl RunDir {
     ) -> Result<(), RunError> {
         let options = serde_json::to_value(options).unwrap_or(Value::Null);
         let result = serde_json::to_value(result).unwrap_or(Value::Null);
-        let peak = take_peak_rss();
+        let peak = peak_rss();
         self.update_attrs(|a| {
             let now = Value::Object(a.clone());
             let inputs = input_digests(&now, name);
@@ -264,13 +264,13 @@ impl RunDir {
     }
 }
 
-/// The process's peak resident memory, bytes, since the last call (or since it
-/// started), and the peak measure restarted, so that each stage recorded by a process
-/// that runs several gets its own peak. Linux only (`VmHWM` of /proc/self/status, reset
-/// through /proc/self/clear_refs); None elsewhere or when /proc cannot be read. When
-/// the reset is refused the peak stays that of the whole process so far.
+/// The process's peak resident memory so far, bytes (Linux `VmHWM` of
+/// /proc/self/status); None elsewhere or when /proc cannot be read. For a stage run
+/// alone by its subcommand this is the stage's peak; in `harmap run`, the largest of
+/// the stages so far. The kernel's high-water mark is not reset between stages: that
+/// would also hide the process's true peak from `/usr/bin/time` and the benchmarks.
 #[must_use]
-pub fn take_peak_rss() -> Option<u64> {
+pub fn peak_rss() -> Option<u64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
     let kib: u64 = status
         .lines()
@@ -280,8 +280,6 @@ pub fn take_peak_rss() -> Option<u64> {
         .trim()
         .parse()
         .ok()?;
-    // "5" resets the peak to the current resident set (Linux 4.0 and later).
-    let _ = std::fs::write("/proc/self/clear_refs", "5");
     Some(kib * 1024)
 }
 
