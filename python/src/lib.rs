@@ -274,10 +274,13 @@ fn voxelize(
         probe: probe[0],
         close,
         probe_ladder: probe[1..].to_vec(),
+        // The CLI's default (repair voxel-scale artifacts; refuse a mesh with real handles).
+        topology: harmap::voxelize::TopologyMode::default(),
         skip_handle_search: false,
     };
     let iopts = InputOptions {
         raw,
+        mem: Some(opts.mem),
         molecule: harmap::input::molecule::MoleculeOptions {
             model,
             keep_hetatm,
