@@ -437,7 +437,7 @@ def gnu_time() -> str | None:
 
 
 def run_harmap(a, harmap: str, env, tmp: Path) -> dict:
-    cmd = [harmap, "--threads", str(a.threads), "-q", "--progress", "never", "trace", a.run, "--sample", str(a.sample)]
+    cmd = [harmap, "--threads", str(a.threads), "-q", "--progress", "never", "trace", a.run, "--seeds", "boundary", "--sample", str(a.sample)]
     if a.stop_radius is not None:
         cmd += ["--stop-radius", repr(a.stop_radius)]
     tfile = tmp / "harmap.time"

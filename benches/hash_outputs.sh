@@ -24,7 +24,7 @@ mkdir -p "$out"
 cd "$out"
 
 "$bin" -q bench map --n 128 --dir "$out/ball" --keep >/dev/null
-"$bin" -q --progress never trace "$out/ball/bench-solve-128.harmap" >/dev/null
+"$bin" -q --progress never trace "$out/ball/bench-solve-128.harmap" --seeds boundary >/dev/null
 run_one() { # NAME ARGS...
     local name=$1
     shift

@@ -87,7 +87,7 @@ fn traced_cube(dir: &std::path::Path, resolution: &str, sample: &str) -> std::pa
         resolution,
     ]);
     harmap(&["solve", r]);
-    harmap(&["trace", r, "--sample", sample]);
+    harmap(&["trace", r, "--seeds", "boundary", "--sample", sample]);
     run
 }
 

@@ -252,13 +252,9 @@ fn solved_ball(
     use harmap::run::RunDir;
     let found = RunDir::open(out)
         .ok()
-        .filter(|r| r.root().join("u/0").exists() && r.require_stage("solve").is_ok());
+        .filter(|r| r.has_image("u") && r.require_stage("solve").is_ok());
     if let Some(r) = found {
-        let secs = r
-            .attrs()?
-            .pointer("/stages/solve/seconds")
-            .and_then(serde_json::Value::as_f64)
-            .unwrap_or(f64::NAN);
+        let secs = harmap::run::stage_record(&r.attrs()?, "solve").map_or(f64::NAN, |s| s.seconds);
         return Ok((r, secs));
     }
     let run = standard_ball(n, mem, out, bars)?;

@@ -127,7 +127,7 @@ impl FieldArg {
 fn available(run: &RunDir) -> Vec<Field> {
     Field::ALL
         .into_iter()
-        .filter(|f| run.root().join(f.name()).join("0").exists())
+        .filter(|f| run.has_image(f.name()))
         .collect()
 }
 

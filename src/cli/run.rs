@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use harmap::input::InputOptions;
 use harmap::pipeline::{PipelineError, PipelineOptions, PipelineReport, Source, StageRun};
-use harmap::trace::{Rk45, SeedKind};
+use harmap::trace::Rk45;
 
 use super::exit::{exit_code_of, shell_words, Stopped};
 use super::map::MapArgs;
@@ -25,8 +25,9 @@ use super::{Global, UsageError};
 /// and the atlas picture (RUN's name with .atlas.png), then a summary.
 ///
 /// Every flag of `harmap voxelize`, `solve`, `trace` and `map` is taken here, with the
-/// same defaults (but --seeds: surface), once: --mem bounds every stage, and the
-/// trace's integrator tolerance is --trace-rtol (--rtol is the solve's).
+/// same defaults, once: --mem bounds every stage, and the trace's integrator tolerance
+/// is --trace-rtol (--rtol is the solve's). `harmap solve --resume` has no flag here:
+/// an interrupted solve is resumed when its checkpoint fits.
 ///
 /// With no INPUT, runs on the built-in five-armed starfish, centered at its middle.
 ///
@@ -91,7 +92,7 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         force: a.force,
         voxelize: vopts,
         solve: a.solve.options(false, mem),
-        trace: a.trace.options(SeedKind::Surface, a.trace_rtol, mem),
+        trace: a.trace.options(a.trace_rtol, mem),
         map: a.map.options(None, mem),
         atlas: Some(out.with_extension("atlas.png")),
         report: Some(super::report::default_path(&out)),
@@ -212,5 +213,49 @@ fn stage_line(r: &PipelineReport, stage: &str) -> String {
             format!("map: {}", super::map::summary(s, *t))
         }),
         _ => String::new(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::CommandFactory;
+
+    /// Stage flags that `harmap run` names otherwise (the trace's --rtol, since --rtol
+    /// is the solve's) or does without (`solve --resume`: run resumes by itself).
+    const RENAMED: [(&str, &str, Option<&str>); 2] = [
+        ("trace", "rtol", Some("trace-rtol")),
+        ("solve", "resume", None),
+    ];
+
+    /// Every long flag of `harmap voxelize`, `solve`, `trace` and `map` is a flag of
+    /// `harmap run` (but the renames above), with the same default value.
+    #[test]
+    fn run_takes_every_stage_flag_with_the_same_default() {
+        let cli = super::super::Cli::command();
+        let run = cli.find_subcommand("run").expect("run");
+        for stage in ["voxelize", "solve", "trace", "map"] {
+            let sc = cli.find_subcommand(stage).expect("stage");
+            let mut checked = 0;
+            for arg in sc.get_arguments() {
+                let Some(long) = arg.get_long() else {
+                    continue; // the positional RUN or INPUT
+                };
+                let want = match RENAMED.iter().find(|(s, l, _)| *s == stage && *l == long) {
+                    Some((_, _, None)) => continue,
+                    Some((_, _, Some(renamed))) => *renamed,
+                    None => long,
+                };
+                let Some(r) = run.get_arguments().find(|a| a.get_long() == Some(want)) else {
+                    panic!("`harmap {stage} --{long}` has no `harmap run --{want}`");
+                };
+                assert_eq!(
+                    r.get_default_values(),
+                    arg.get_default_values(),
+                    "the default of `harmap run --{want}` differs from `harmap {stage} --{long}`'s"
+                );
+                checked += 1;
+            }
+            assert!(checked > 0, "{stage}: no flags found");
+        }
     }
 }

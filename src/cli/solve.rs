@@ -156,7 +156,7 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     let run = RunDir::open(&a.run).map_err(harmap::Error::from)?;
     let opts = a.opts.options(a.resume, a.mem);
     harmap::pipeline::check_solve(&opts)?;
-    if a.resume && !run.root().join("solve").join("manifest.json").exists() {
+    if a.resume && !run.has_checkpoint() {
         return Err(UsageError(format!(
             "{}: no checkpoint to resume from (the solve was not started, or stopped before its first checkpoint); run `{}` without --resume",
             a.run.display(),

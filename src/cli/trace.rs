@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use harmap::grid::MemBudget;
 use harmap::run::RunDir;
-use harmap::trace::{trace, Rk45, SeedKind, TraceOptions, TraceReport};
+use harmap::trace::{trace, Rk45, SeedKind, TraceOptions, TraceReport, DEFAULT_SEEDS};
 
 use super::progress::Bars;
 use super::Global;
@@ -21,11 +21,12 @@ use super::Global;
 /// vanishing gradient, or used its steps. The arrival direction from the center gives
 /// theta (polar) and psi (azimuth): the seed's place on the unit sphere.
 ///
-/// Seeds: every boundary voxel (default), or with --seeds surface the vertices of a
-/// surface: the input mesh's own, or for label volumes and molecules a surface extracted
-/// from the labels (surface nets, on the boundary between the solid's voxels and the
-/// outside). Its triangles then give the bijectivity numbers: triangles flipped on the
-/// sphere, seeds landing on seeds from elsewhere, and area and angle distortion.
+/// Seeds (as in `harmap run`): by default the vertices of a surface: the input mesh's
+/// own, or for label volumes and molecules a surface extracted from the labels (surface
+/// nets, on the boundary between the solid's voxels and the outside). Its triangles
+/// give the bijectivity numbers: triangles flipped on the sphere, seeds landing on seeds
+/// from elsewhere, and area and angle distortion. --seeds boundary traces from every
+/// boundary voxel instead (no triangles, so no flip count).
 ///
 /// The grid is cut into tiles; tiles with streamlines waiting are built into a cache
 /// that stays within --mem and processed in parallel. Results do not depend on the tile
@@ -37,7 +38,7 @@ use super::Global;
 ///
 /// Examples:
 ///   harmap trace spot.harmap
-///   harmap trace spot.harmap --seeds surface
+///   harmap trace spot.harmap --seeds boundary
 ///   harmap trace big.harmap --sample 50000 --mem 256MiB
 ///   harmap trace spot.harmap --atol 1e-5       # faster, a noisier sphere map
 #[derive(clap::Args, Debug)]
@@ -62,11 +63,11 @@ pub struct Args {
 #[derive(clap::Args, Debug, Clone)]
 #[command(next_help_heading = "Trace")]
 pub struct TraceArgs {
-    /// Seeds: every boundary voxel, or the vertices of the input surface (of the labels'
-    /// surface nets for inputs that are not meshes) [default: boundary for `harmap
-    /// trace`, surface for `harmap run`, whose summary then has the bijectivity numbers].
-    #[arg(long, value_enum)]
-    pub seeds: Option<SeedArg>,
+    /// Seeds: the vertices of the input surface (of the labels' surface nets for inputs
+    /// that are not meshes), whose triangles give the bijectivity numbers, or every
+    /// boundary voxel.
+    #[arg(long, value_enum, default_value_t = SeedArg::from(DEFAULT_SEEDS))]
+    pub seeds: SeedArg,
     /// Trace a deterministic subset of N seeds (the same N gives the same seeds).
     #[arg(long, value_name = "N")]
     pub sample: Option<u64>,
@@ -105,6 +106,15 @@ pub struct TraceArgs {
     pub level_step: Option<f64>,
 }
 
+impl From<SeedKind> for SeedArg {
+    fn from(k: SeedKind) -> Self {
+        match k {
+            SeedKind::Boundary => SeedArg::Boundary,
+            SeedKind::Surface => SeedArg::Surface,
+        }
+    }
+}
+
 impl SeedArg {
     /// The library's seed kind.
     #[must_use]
@@ -127,11 +137,11 @@ pub enum SeedArg {
 }
 
 impl TraceArgs {
-    /// The library options: seeds `default_seeds` unless --seeds says, the integrator's
-    /// relative tolerance `rtol`, the memory budget `mem`.
+    /// The library options, with the integrator's relative tolerance `rtol` and the
+    /// memory budget `mem`.
     #[must_use]
-    pub fn options(&self, default_seeds: SeedKind, rtol: f64, mem: MemBudget) -> TraceOptions {
-        let seeds = self.seeds.map_or(default_seeds, SeedArg::kind);
+    pub fn options(&self, rtol: f64, mem: MemBudget) -> TraceOptions {
+        let seeds = self.seeds.kind();
         let default = Rk45::for_seeds(seeds);
         TraceOptions {
             seeds,
@@ -185,7 +195,7 @@ pub fn summary(r: &TraceReport, seconds: f64) -> String {
 /// Run `harmap trace`.
 pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     let run = RunDir::open(&a.run).map_err(harmap::Error::from)?;
-    let opts = a.opts.options(SeedKind::Boundary, a.rtol, a.mem);
+    let opts = a.opts.options(a.rtol, a.mem);
     let attrs = run.attrs().map_err(harmap::Error::from)?;
     harmap::pipeline::check_stop_radius(&attrs, opts.stop_radius)?;
     let t = std::time::Instant::now();

@@ -26,13 +26,9 @@ pub fn vtk_streamlines(
     progress: &dyn Progress,
 ) -> Result<u64, crate::Error> {
     let attrs = run.attrs()?;
-    let mut opts: TraceOptions = attrs
-        .pointer("/stages/trace/options")
-        .and_then(|o| serde_json::from_value(o.clone()).ok())
-        .unwrap_or_default();
-    if attrs.pointer("/stages/trace/options").is_none() {
-        opts.seeds = SeedKind::Boundary;
-    }
+    // The trace's options, or boundary seeds for a run not traced.
+    let mut opts: TraceOptions = crate::run::options_in(&attrs, "trace")
+        .unwrap_or_else(|| TraceOptions::for_seeds(SeedKind::Boundary));
     if sample.is_some() {
         opts.sample = sample;
     }

@@ -31,6 +31,15 @@ use crate::trace::field::Tile;
 use crate::trace::integrate::{level_step, onto_level, LevelEnd, LevelField, Rk45, StopBall};
 use crate::trace::surface::{Boundary, BOUNDARY_MESH};
 
+/// The fields of the map's report ([`super::MapReport`]) the inverse follows.
+#[derive(serde::Deserialize)]
+struct MapRecorded {
+    /// Where the direction field's boundary values came from.
+    boundary: Option<String>,
+    /// The exact map's integrator.
+    integrator: Option<Rk45>,
+}
+
 /// Step of the uphill integration (voxels).
 const STEP: f64 = 0.25;
 /// Steps allowed per point.
@@ -210,10 +219,9 @@ impl Inverse {
         let threads = rayon::current_num_threads() as u64;
         // The field the map followed: boundary values from the input mesh only if the
         // map's were (a map recorded before they could be had the smoothed solid's).
-        let mapped = attrs.pointer("/stages/map").is_some();
-        let map_boundary = attrs
-            .pointer("/stages/map/result/boundary")
-            .and_then(serde_json::Value::as_str);
+        let mapped = crate::run::stage_record(&attrs, "map").is_some();
+        let recorded = crate::run::report_in::<MapRecorded>(&attrs, "map");
+        let map_boundary = recorded.as_ref().and_then(|m| m.boundary.as_deref());
         let boundary = if mapped && map_boundary != Some(BOUNDARY_MESH) {
             Boundary::default()
         } else {
@@ -256,9 +264,8 @@ impl Inverse {
             },
             ball,
             // The exact map's integrator as it recorded it, or today's.
-            rk: attrs
-                .pointer("/stages/map/result/integrator")
-                .and_then(|v| serde_json::from_value(v.clone()).ok())
+            rk: recorded
+                .and_then(|m| m.integrator)
                 .unwrap_or_else(super::exact_integrator),
             origin: DVec3::from_array(spec.origin),
             spacing: spec.spacing,

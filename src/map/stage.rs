@@ -39,7 +39,7 @@ pub fn map_with(
     let t0 = Instant::now();
     let _lock = run.lock()?;
     let attrs = run.require_stage("solve")?;
-    if !run.root().join("u/0").exists() {
+    if !run.has_image("u") {
         return Err(MapError::NoU {
             run: run.root().to_path_buf(),
         }

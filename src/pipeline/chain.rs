@@ -81,14 +81,14 @@ pub fn run(
 
     // Solve.
     let a = attrs(&run)?;
-    match decide(&a, "solve", &opts.solve, run.root().join("phi").exists()) {
+    match decide(&a, "solve", &opts.solve, run.has_image("phi")) {
         Decision::Skip => report.stages.push(("solve", StageRun::Skipped)),
         Decision::Run(again) => {
             if progress.interrupted() {
                 return Err(stopped("solve"));
             }
             let mut o = opts.solve.clone();
-            o.resume = run.root().join("solve").join("manifest.json").exists();
+            o.resume = run.has_checkpoint();
             let t = Instant::now();
             let mut r = crate::solve::solve(&run, &o, stop, progress);
             if let Err(crate::Error::Solve(SolveError::Checkpoint { reason, .. })) = &r {
@@ -96,7 +96,7 @@ pub fn run(
                 // these options: start over, and say so.
                 progress.warn(&format!(
                     "solve: the checkpoint in {} is of no use here ({reason}); solving from the start",
-                    run.root().join("solve").display()
+                    run.checkpoint_dir().display()
                 ));
                 o.resume = false;
                 r = crate::solve::solve(&run, &o, stop, progress);
@@ -112,7 +112,7 @@ pub fn run(
 
     // Trace.
     let a = attrs(&run)?;
-    match decide(&a, "trace", &opts.trace, run.root().join("seeds").exists()) {
+    match decide(&a, "trace", &opts.trace, run.has_seed_table()) {
         Decision::Skip => report.stages.push(("trace", StageRun::Skipped)),
         Decision::Run(again) => {
             if progress.interrupted() {
@@ -133,7 +133,7 @@ pub fn run(
     if map_opts.stop_radius.is_none() {
         map_opts.stop_radius = options_in::<TraceOptions>(&a, "trace").and_then(|t| t.stop_radius);
     }
-    match decide(&a, "map", &map_opts, run.root().join("theta").exists()) {
+    match decide(&a, "map", &map_opts, run.has_image("theta")) {
         Decision::Skip => report.stages.push(("map", StageRun::Skipped)),
         Decision::Run(again) => {
             if progress.interrupted() {

@@ -27,18 +27,35 @@ pub(super) fn title(run: &RunDir, t: &SeedTable) -> String {
         reached,
         t.position.len()
     );
-    let r = a.pointer("/stages/trace/result");
-    if let Some(m) = r.and_then(|r| r.get("surface")).filter(|m| !m.is_null()) {
-        let _ = write!(
-            s,
-            "; {} of {} triangles flipped",
-            m["flipped"], m["measured"]
-        );
-    }
-    if let Some(c) = r.and_then(|r| r.pointer("/collisions/seeds")) {
-        let _ = write!(s, "; {c} collisions");
+    if let Some(r) = crate::run::report_in::<Bijectivity>(&a, "trace") {
+        if let Some(m) = r.surface {
+            let _ = write!(s, "; {} of {} triangles flipped", m.flipped, m.measured);
+        }
+        if let Some(c) = r.collisions {
+            let _ = write!(s, "; {} collisions", c.seeds);
+        }
     }
     s
+}
+
+/// The fields of the trace's report ([`crate::trace::TraceReport`]) the title shows.
+#[derive(serde::Deserialize)]
+struct Bijectivity {
+    surface: Option<Flips>,
+    collisions: Option<CollidingSeeds>,
+}
+
+/// Of [`crate::trace::metrics::SurfaceMetrics`].
+#[derive(serde::Deserialize)]
+struct Flips {
+    measured: u64,
+    flipped: u64,
+}
+
+/// Of [`crate::trace::metrics::Collisions`].
+#[derive(serde::Deserialize)]
+struct CollidingSeeds {
+    seeds: u64,
 }
 
 /// Write `draw`'s picture to `dest` (PNG or SVG by extension) through a temporary file.

@@ -193,6 +193,31 @@ impl RunDir {
         Ok(())
     }
 
+    /// Whether the run holds the image `name` (its array `name/0`; images are moved
+    /// into place whole, see [`RunDir::commit_image`]).
+    #[must_use]
+    pub fn has_image(&self, name: &str) -> bool {
+        self.root.join(name).join("0").exists()
+    }
+
+    /// Whether the run holds a seed table (`RUN/seeds/`, written by the trace).
+    #[must_use]
+    pub fn has_seed_table(&self) -> bool {
+        self.root.join("seeds").exists()
+    }
+
+    /// Where the solve keeps its checkpoints (`RUN/solve/`).
+    #[must_use]
+    pub fn checkpoint_dir(&self) -> PathBuf {
+        self.root.join("solve")
+    }
+
+    /// Whether an interrupted solve left a checkpoint to resume from.
+    #[must_use]
+    pub fn has_checkpoint(&self) -> bool {
+        self.checkpoint_dir().join("manifest.json").exists()
+    }
+
     /// The Zarr data type of image `name` (`float32`, `float64`, `uint8`, ...).
     pub fn image_data_type(&self, name: &str) -> Result<String, crate::Error> {
         let path = self.root.join(name).join("0").join("zarr.json");

@@ -22,7 +22,9 @@ use std::path::{Path, PathBuf};
 pub use atomic::write_atomic;
 pub use dir::RunDir;
 pub use ome::ome_multiscales;
-pub use stages::{peak_rss, stage_done, Freshness, StageRecord, STAGES};
+pub use stages::{
+    options_in, peak_rss, report_in, stage_done, stage_record, Freshness, StageRecord, STAGES,
+};
 pub use staging::{staging_path, RunLock, Staging};
 
 /// Version of the on-disk layout this build writes and reads.

@@ -54,7 +54,9 @@ pub fn identity(run: &RunDir, opts: &SolveOptions) -> Result<String, crate::Erro
         "grid": a.get("grid"),
         "input": a.get("input"),
         "center": a.get("center"),
-        "voxelize": a.pointer("/stages/voxelize/options"),
+        // The options as recorded (not read back by type: the identity must change
+        // with any recorded field, known to this version or not).
+        "voxelize": crate::run::stage_record(&a, "voxelize").map(|r| r.options),
         "solve": opts,
     });
     Ok(hex(&Sha256::digest(v.to_string().as_bytes())))

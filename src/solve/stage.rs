@@ -55,7 +55,7 @@ pub fn solve_with(
     let _lock = run.lock()?;
     run.require_stage("voxelize")?;
     let spec = run.grid()?;
-    let dir = run.root().join("solve");
+    let dir = run.checkpoint_dir();
     let setup = build(run, &spec, opts, decomp, &dir, progress)?;
     let h = &setup.h;
     let it = Iteration::new(h, opts.method, opts.omega);

@@ -115,9 +115,17 @@ impl Boundary {
     /// with the hash table's slack).
     #[must_use]
     pub fn cache_bytes(attrs: &serde_json::Value, mem: MemBudget) -> u64 {
-        let boundary = attrs
-            .pointer("/stages/voxelize/result/counts/1")
-            .and_then(serde_json::Value::as_u64)
+        /// The one field of the voxelization's report read here.
+        #[derive(serde::Deserialize)]
+        struct Counts {
+            counts: Vec<u64>,
+        }
+        let boundary = crate::run::report_in::<Counts>(attrs, "voxelize")
+            .and_then(|r| {
+                r.counts
+                    .get(usize::from(crate::voxelize::labels::BOUNDARY))
+                    .copied()
+            })
             .unwrap_or(0);
         (boundary * 4 * nearest::CACHE_ENTRY_BYTES).min(mem.work_bytes() / 8)
     }

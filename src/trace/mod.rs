@@ -31,7 +31,9 @@ pub mod tiles;
 
 pub use integrate::{Rk45, Stop};
 pub use seeds::SeedKind;
-pub use stage::{read_seeds, trace, SeedTable, TraceError, TraceOptions, TraceReport};
+pub use stage::{
+    read_seeds, trace, SeedTable, TraceError, TraceOptions, TraceReport, DEFAULT_SEEDS,
+};
 
 /// The polar and azimuthal angles of direction `d` (physical x, y, z): theta =
 /// atan2(sqrt(x^2 + y^2), z) in [0, pi], psi = atan2(y, x) in (-pi, pi].

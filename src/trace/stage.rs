@@ -38,8 +38,15 @@ pub struct TraceOptions {
     pub mem: MemBudget,
 }
 
-/// Boundary seeds with [`Rk45::default`]; for surface seeds use
-/// [`TraceOptions::for_seeds`], which also picks their tolerance.
+/// The seeds `harmap trace` and `harmap run` use by default: the vertices of the input
+/// surface (or of the labels' surface nets), whose triangles give the bijectivity
+/// numbers (flipped triangles). `TraceOptions::for_seeds(DEFAULT_SEEDS)` are those
+/// commands' default options.
+pub const DEFAULT_SEEDS: SeedKind = SeedKind::Surface;
+
+/// Boundary seeds with [`Rk45::default`] (the library's plain integrator, which tests
+/// and benchmarks build on); the commands' defaults are
+/// `TraceOptions::for_seeds(DEFAULT_SEEDS)`, which also picks the seeds' tolerance.
 impl Default for TraceOptions {
     fn default() -> Self {
         Self {
@@ -155,13 +162,24 @@ pub fn stop_ball(
     stop_radius: Option<f64>,
     root: &Path,
 ) -> Result<StopBall, crate::Error> {
-    let center_radius = attrs
-        .pointer("/stages/voxelize/options/center_radius")
-        .and_then(Value::as_f64)
+    /// The voxelization's center radius (an option) and the center's depth (its
+    /// report; an infinite depth is stored as null).
+    #[derive(Deserialize)]
+    struct Center {
+        center_radius: Option<f64>,
+        center_depth: Option<f64>,
+    }
+    let read = |v: Option<Center>| {
+        v.unwrap_or(Center {
+            center_radius: None,
+            center_depth: None,
+        })
+    };
+    let center_radius = read(crate::run::options_in(attrs, "voxelize"))
+        .center_radius
         .unwrap_or(2.0);
-    let depth = attrs
-        .pointer("/stages/voxelize/result/center_depth")
-        .and_then(Value::as_f64)
+    let depth = read(crate::run::report_in(attrs, "voxelize"))
+        .center_depth
         .unwrap_or(f64::INFINITY);
     let radius = stop_radius.unwrap_or_else(|| {
         let least = center_radius + 1.0;
@@ -215,7 +233,7 @@ impl Tracer {
         boundary: Boundary,
     ) -> Result<Self, crate::Error> {
         let attrs = run.require_stage("solve")?;
-        if !run.root().join("u/0").exists() {
+        if !run.has_image("u") {
             return Err(options(format!(
                 "{}: solved by an older harmap that did not store u = 1 - phi; run `harmap solve` again",
                 run.root().display()

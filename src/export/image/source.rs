@@ -24,7 +24,7 @@ pub(super) enum Source {
 impl Source {
     pub(super) fn open(run: &RunDir, f: Field) -> Result<Self, crate::Error> {
         run.refuse_stale(f.stage())?;
-        if run.require_stage(f.stage()).is_err() || !run.root().join(f.name()).exists() {
+        if run.require_stage(f.stage()).is_err() || !run.has_image(f.name()) {
             return Err(ExportError::Unavailable(format!(
                 "{}: the run has no {} yet; run `harmap {}` first",
                 run.root().display(),

@@ -16,6 +16,12 @@ pub struct InverseCounts {
     pub failed: u64,
 }
 
+/// The stop radius of the map's report or of the trace's options.
+#[derive(serde::Deserialize)]
+struct StopRadius {
+    stop_radius: Option<f64>,
+}
+
 /// Read `input` (CSV with a header naming `phi` (or `u` = 1 - phi, preferred when
 /// present), `theta` and `psi`; other columns are ignored) and write `output`: `phi,theta,psi,x,y,z,status` per row, x, y, z empty and
 /// status the reason where a row has no point. Written under a temporary name.
@@ -30,10 +36,10 @@ pub fn inverse_csv(
     let (first, by_u, rows) = read_points(input)?;
     // The map's stop ball (the trace may have been run again with another since).
     let attrs = run.attrs()?;
-    let stop_radius = attrs
-        .pointer("/stages/map/result/stop_radius")
-        .or_else(|| attrs.pointer("/stages/trace/options/stop_radius"))
-        .and_then(serde_json::Value::as_f64);
+    let stop_radius = match crate::run::report_in::<StopRadius>(&attrs, "map") {
+        Some(m) => m.stop_radius,
+        None => crate::run::options_in::<StopRadius>(&attrs, "trace").and_then(|t| t.stop_radius),
+    };
     let inv = Inverse::new(run, stop_radius, mem)?;
     if let Some(problem) = &inv.boundary().problem {
         progress.warn(problem);

@@ -535,7 +535,7 @@ pub(super) fn slices_section(p: &mut String, run: &RunDir, a: &Value) {
          <p class=\"note\">Light gray: outside the problem or not mapped.</p>",
     );
     for (name, stage, map, (lo, hi), what) in fields {
-        if !crate::run::stage_done(a, stage) || !run.root().join(name).exists() {
+        if !crate::run::stage_done(a, stage) || !run.has_image(name) {
             let _ = write!(p, "<p class=\"note\">{name}: not computed yet.</p>");
             continue;
         }
