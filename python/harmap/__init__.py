@@ -145,6 +145,8 @@ class Run:
         if not isinstance(attrs, dict):
             raise HarmapError(f"{self.path}: a Zarr group but not a harmap run (no harmap attributes)")
         self.metadata = attrs
+        #: What :func:`run` did with each stage (None for a run opened otherwise).
+        self.pipeline = None
         self._arrays = {}
 
     def __repr__(self):
@@ -375,6 +377,7 @@ def voxelize(
     padding=6,
     center=None,
     center_radius=2.0,
+    topology="auto",
     allow_genus=False,
     keep_largest=False,
     close=0,
@@ -398,41 +401,18 @@ def voxelize(
     label array, or None for the built-in starfish (centered at its middle). Shapes in
     memory are written into the run (``input.obj``, ``input.xyzr``, ``input.raw``) and
     read from there, exactly as the command reads a file. ``probe`` may be a list (a
-    probe ladder). Returns the :class:`Run`.
+    probe ladder). ``topology``: "auto", "repair" or "strict" (``--topology``).
+    Returns the :class:`Run`.
     """
     kind, payload = _classify(shape)
-    if out is None:
-        if kind == "path":
-            out = Path(payload.name.split(".")[0] + ".harmap")
-        elif kind == "starfish":
-            out = Path("starfish.harmap")
-        else:
-            raise HarmapError("out: give the run directory for a shape in memory")
-    out = Path(out)
-    probes = [float(p) for p in (probe if isinstance(probe, (list, tuple)) else [probe])]
-    temp = None
-    path = None
-    if kind == "path":
-        path = payload
-    elif kind == "mesh":
-        temp = _temp_in(out, ".obj")
-        path = temp
-    elif kind == "atoms":
-        temp = _temp_in(out, ".xyzr")
-        path = temp
-    elif kind == "labels":
-        temp = _temp_in(out, ".raw")
-        path = temp
-    try:
-        if kind == "mesh":
-            _write_obj(temp, *payload)
-        elif kind == "atoms":
-            _write_xyzr(temp, payload)
-        elif kind == "labels":
-            raw_shape, raw_dtype = _write_raw(temp, payload)
+    out = _default_out(kind, payload, out)
+    probes = _probes(probe)
+    with _Shape(kind, payload, out) as path:
+        if kind == "labels":
+            raw_shape, raw_dtype = path.raw
         with _Bars(progress) as bars:
             _harmap.voxelize(
-                None if path is None else str(path),
+                path.arg,
                 str(out),
                 force=force,
                 resolution=resolution,
@@ -440,6 +420,7 @@ def voxelize(
                 padding=padding,
                 center=None if center is None else [float(c) for c in center],
                 center_radius=center_radius,
+                topology=topology,
                 allow_genus=allow_genus,
                 keep_largest=keep_largest,
                 close=close,
@@ -456,13 +437,69 @@ def voxelize(
                 radius=radius,
                 progress=bars,
             )
-        if temp is not None:
-            _harmap.adopt_input(str(out), str(temp), kind)
-            temp = None
-    finally:
-        if temp is not None:
-            temp.unlink(missing_ok=True)
     return Run(out)
+
+
+def _default_out(kind, payload, out):
+    """The run directory: ``out``, or the input's name with .harmap (as the command)."""
+    if out is None:
+        if kind == "path":
+            return Path(payload.name.split(".")[0] + ".harmap")
+        if kind == "starfish":
+            return Path("starfish.harmap")
+        raise HarmapError("out: give the run directory for a shape in memory")
+    return Path(out)
+
+
+def _probes(probe):
+    return [float(p) for p in (probe if isinstance(probe, (list, tuple)) else [probe])]
+
+
+class _Shape:
+    """A shape as the file the library reads: a path as it is, a shape in memory
+    written to a temporary file beside ``out``. On leaving, a temporary file that the
+    run at ``out`` now names as its input is moved into the run (``input.<ext>``), so
+    the later stages (and a later call) find it; otherwise it is removed."""
+
+    _SUFFIX = {"mesh": ".obj", "atoms": ".xyzr", "labels": ".raw"}
+
+    def __init__(self, kind, payload, out):
+        self.kind, self.payload, self.out = kind, payload, Path(out)
+        self.temp = None
+        self.raw = None
+
+    def __enter__(self):
+        if self.kind == "path":
+            self.arg = str(self.payload)
+        elif self.kind == "starfish":
+            self.arg = None
+        else:
+            self.temp = _temp_in(self.out, self._SUFFIX[self.kind])
+            self.arg = str(self.temp)
+            try:
+                if self.kind == "mesh":
+                    _write_obj(self.temp, *self.payload)
+                elif self.kind == "atoms":
+                    _write_xyzr(self.temp, self.payload)
+                else:
+                    self.raw = _write_raw(self.temp, self.payload)
+            except BaseException:
+                self.temp.unlink(missing_ok=True)
+                raise
+        return self
+
+    def __exit__(self, *exc):
+        if self.temp is None:
+            return False
+        try:
+            recorded = Run(self.out).metadata.get("input", {}).get("path")
+        except Exception:  # no run there (the voxelization failed)
+            recorded = None
+        if recorded and Path(recorded).resolve() == self.temp.resolve():
+            _harmap.adopt_input(str(self.out), str(self.temp), self.kind)
+        else:
+            self.temp.unlink(missing_ok=True)
+        return False
 
 
 def solve(
@@ -504,22 +541,25 @@ def solve(
 def trace(
     run,
     *,
-    seeds="boundary",
+    seeds="surface",
     sample=None,
     stop_radius=None,
     tile=None,
     mem="1GiB",
     atol=None,
-    rtol=None,
-    h_min=None,
-    h_max=None,
-    max_steps=None,
+    rtol=0.0,
+    h_min=1e-6,
+    h_max=2.0,
+    max_steps=20000,
     level_step=None,
     progress=True,
 ):
     """Trace streamlines from the seeds to the center (``harmap trace``); returns the
-    trace's report. ``seeds``: "boundary" (every boundary voxel, the command's default)
-    or "surface" (the input mesh's vertices, or the labels' surface nets)."""
+    trace's report. ``seeds``: "surface" (the input mesh's vertices, or the labels'
+    surface nets; the command's default, whose triangles give the flip counts) or
+    "boundary" (every boundary voxel). ``atol`` and ``level_step`` default by the
+    seeds, as the command's. Ctrl-C stops it within about a second
+    (KeyboardInterrupt)."""
     with _Bars(progress) as bars:
         r = _harmap.trace(
             os.fspath(run),
@@ -603,55 +643,112 @@ def run(
     out=None,
     *,
     force=False,
+    resolution=None,
+    spacing=None,
+    padding=6,
+    center=None,
+    center_radius=2.0,
+    topology="auto",
+    allow_genus=False,
+    keep_largest=False,
+    close=0,
+    unit=None,
+    chunk=64,
+    mem="1GiB",
+    scratch="auto",
+    raw_shape=None,
+    raw_dtype=None,
+    surface="ses",
+    probe=1.4,
+    model=None,
+    keep_hetatm=False,
+    radius=None,
     method="multigrid",
     rtol=1e-6,
+    tol=0.0,
+    eps=1e-4,
     max_iter=1000,
+    omega=None,
     checkpoint_every="5m",
-    stop_radius=None,
     seeds="surface",
+    sample=None,
+    stop_radius=None,
+    tile=None,
+    atol=None,
+    h_min=1e-6,
+    h_max=2.0,
+    max_steps=20000,
+    level_step=None,
+    trace_rtol=0.0,
     exact=False,
-    mem="1GiB",
     progress=True,
-    **voxelize_options,
 ):
-    """The whole pipeline (``harmap run``): voxelize, solve, trace (surface seeds by
-    default), map, the atlas (``<out>.atlas.png``) and the report page
-    (``<out>.report.html``). Keyword arguments not named here go to :func:`voxelize`.
+    """The whole pipeline (``harmap run``, through the same library call): voxelize,
+    solve, trace (surface seeds by default), map, the atlas (``<out>.atlas.png``) and
+    the report page (``<out>.report.html``). The keyword arguments are the command's
+    flags with the same defaults (``trace_rtol`` is the trace's ``rtol``; ``rtol`` is
+    the solve's).
 
-    An ``out`` that holds a run is refused unless ``force=True``, except a run whose
-    solve was interrupted: that one is continued from its checkpoint.
+    As the command: stages already done in ``out`` with the same options are skipped
+    (so calling again finishes a stopped run), a stage whose options changed runs again
+    with the stages that read it, an interrupted solve is continued from its
+    checkpoint, and a run of another input or other voxelization options is refused
+    unless ``force=True``. Ctrl-C stops the stage running within about a second
+    (KeyboardInterrupt); the finished stages are kept. Returns the :class:`Run`, whose
+    ``pipeline`` attribute says what was done with each stage.
     """
     kind, payload = _classify(shape)
-    if out is None and kind == "path":
-        out = Path(payload.name.split(".")[0] + ".harmap")
-    elif out is None and kind == "starfish":
-        out = Path("starfish.harmap")
-    if out is None:
-        raise HarmapError("out: give the run directory for a shape in memory")
-    out = Path(out)
-    resume = False
-    if out.exists() and not force:
-        r = Run(out)
-        resume = (out / "solve" / "manifest.json").exists() and not r.done("solve")
-        if not resume:
-            raise HarmapError(
-                f"{out} holds a run already; pass force=True to redo it, choose another out, "
-                "or open it with harmap.open"
+    out = _default_out(kind, payload, out)
+    with _Shape(kind, payload, out) as path:
+        if kind == "labels":
+            raw_shape, raw_dtype = path.raw
+        with _Bars(progress) as bars:
+            done = _harmap.run(
+                path.arg,
+                str(out),
+                force=force,
+                resolution=resolution,
+                spacing=spacing,
+                padding=padding,
+                center=None if center is None else [float(c) for c in center],
+                center_radius=center_radius,
+                topology=topology,
+                allow_genus=allow_genus,
+                keep_largest=keep_largest,
+                close=close,
+                unit=unit,
+                chunk=chunk,
+                mem=_mem(mem),
+                scratch=scratch,
+                raw_shape=None if raw_shape is None else [int(s) for s in raw_shape],
+                raw_dtype=raw_dtype,
+                surface=surface,
+                probe=_probes(probe),
+                model=model,
+                keep_hetatm=keep_hetatm,
+                radius=radius,
+                method=method,
+                rtol=rtol,
+                tol=tol,
+                eps=eps,
+                max_iter=max_iter,
+                omega=omega,
+                checkpoint_every=_duration(checkpoint_every),
+                seeds=seeds,
+                sample=sample,
+                stop_radius=stop_radius,
+                tile=tile,
+                atol=atol,
+                h_min=h_min,
+                h_max=h_max,
+                max_steps=max_steps,
+                level_step=level_step,
+                trace_rtol=trace_rtol,
+                exact=exact,
+                atlas=str(out.with_suffix(".atlas.png")),
+                report=str(out.with_suffix(".report.html")),
+                progress=bars,
             )
-    if not resume:
-        voxelize(shape, out, force=force, mem=mem, progress=progress, **voxelize_options)
-    solve(
-        out,
-        method=method,
-        rtol=rtol,
-        max_iter=max_iter,
-        checkpoint_every=checkpoint_every,
-        mem=mem,
-        resume=resume,
-        progress=progress,
-    )
-    trace(out, seeds=seeds, stop_radius=stop_radius, mem=mem, progress=progress)
-    map(out, exact=exact, mem=mem, progress=progress)
-    atlas(out, out.with_suffix(".atlas.png"))
-    report(out)
-    return Run(out)
+    r = Run(out)
+    r.pipeline = json.loads(done)
+    return r

@@ -4,15 +4,16 @@
 //! from Python has the same bytes as one made by `harmap`), with the command line's
 //! options and defaults. The work runs on a thread of its own while the calling thread
 //! waits with the GIL released; every tenth of a second it hands the progress to the
-//! Python callback and checks for signals. A Ctrl-C during the solve sets the solve's
-//! stop flag, so the solve writes its checkpoint and the call raises KeyboardInterrupt;
-//! the other stages have no stop flag and finish before the KeyboardInterrupt is
-//! raised. Library errors become `harmap.HarmapError` (a `ValueError`) with the
-//! message the command line prints.
+//! Python callback and checks for signals. A Ctrl-C sets the library's interrupt token
+//! ([`harmap::progress::Interrupt`]), which the stages poll per block, tile or
+//! iteration, as the command line's SIGINT handler does: the solve writes its
+//! checkpoint, the other stages stop within about a second, and the call raises
+//! KeyboardInterrupt. Library errors become `harmap.HarmapError` (a `ValueError`) with
+//! the message the command line prints.
 
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 use std::time::Duration;
 
@@ -67,6 +68,8 @@ struct Shared {
     position: AtomicU64,
     message: Mutex<String>,
     warnings: Mutex<Vec<String>>,
+    /// Set on Ctrl-C; the stages poll it.
+    interrupt: harmap::progress::Interrupt,
 }
 
 impl harmap::progress::Progress for Shared {
@@ -99,7 +102,13 @@ impl harmap::progress::Progress for Shared {
             .expect("progress lock")
             .push(message.to_owned());
     }
+    fn interrupt(&self) -> Option<&harmap::progress::Interrupt> {
+        Some(&self.interrupt)
+    }
 }
+
+/// SIGINT's number, recorded in the interrupt token as the command line does.
+const SIGINT: usize = 2;
 
 /// Hand the state of `s` to `cb(phase_id, name, position, total, message)`.
 fn report(py: Python<'_>, s: &Shared, cb: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
@@ -127,16 +136,16 @@ fn report(py: Python<'_>, s: &Shared, cb: Option<&Bound<'_, PyAny>>) -> PyResult
 }
 
 /// Run `work` on a thread of its own with the GIL released, reporting progress to
-/// `cb` and polling for signals. On a signal, `stop` (when the stage has one) is set
-/// and the signal's exception (KeyboardInterrupt for Ctrl-C) is raised once the work
-/// has returned.
+/// `cb` and polling for signals. On a signal, the interrupt token the stages poll is
+/// set and the signal's exception (KeyboardInterrupt for Ctrl-C) is raised once the
+/// work has returned (within about a second: the stages check the token per block,
+/// tile or iteration).
 fn detached<T: Send>(
     py: Python<'_>,
     cb: Option<&Bound<'_, PyAny>>,
-    stop: Option<&AtomicBool>,
     work: impl FnOnce(&Shared) -> T + Send,
 ) -> PyResult<T> {
-    match detached_raw(py, cb, stop, work) {
+    match detached_raw(py, cb, work) {
         (_, Some(e)) => Err(e),
         (v, None) => Ok(v),
     }
@@ -146,7 +155,6 @@ fn detached<T: Send>(
 fn detached_raw<T: Send>(
     py: Python<'_>,
     cb: Option<&Bound<'_, PyAny>>,
-    stop: Option<&AtomicBool>,
     work: impl FnOnce(&Shared) -> T + Send,
 ) -> (T, Option<PyErr>) {
     let shared = Shared::default();
@@ -165,9 +173,7 @@ fn detached_raw<T: Send>(
             });
             if raised.is_none() {
                 if let Err(e) = py.check_signals() {
-                    if let Some(s) = stop {
-                        s.store(true, Ordering::SeqCst);
-                    }
+                    shared.interrupt.set(SIGINT);
                     raised = Some(e);
                 }
             }
@@ -195,43 +201,34 @@ fn json_str(v: &impl serde::Serialize) -> String {
     serde_json::to_string(v).unwrap_or_else(|_| "null".into())
 }
 
-/// Voxelize `path` (None: the built-in starfish) into a new run at `out`. Options as
-/// `harmap voxelize`'s flags; returns the voxelize report as JSON text.
-#[pyfunction]
-#[pyo3(signature = (path, out, *, force=false, resolution=None, spacing=None, padding=6,
-    center=None, center_radius=2.0, allow_genus=false, keep_largest=false, close=0,
-    unit=None, chunk=64, mem="1GiB", scratch="auto", raw_shape=None, raw_dtype=None,
-    surface="ses", probe=vec![1.4], model=None, keep_hetatm=false, radius=None,
-    progress=None))]
+/// The voxelization's options and the input's, from the keyword arguments of
+/// `harmap.voxelize` and `harmap.run` (the command line's flags, same defaults).
 #[allow(clippy::too_many_arguments, clippy::fn_params_excessive_bools)]
-fn voxelize(
-    py: Python<'_>,
-    path: Option<PathBuf>,
-    out: PathBuf,
-    force: bool,
+fn voxelize_options(
+    starfish: bool,
     resolution: Option<u64>,
     spacing: Option<f64>,
     padding: u64,
     center: Option<[f64; 3]>,
     center_radius: f64,
+    topology: &str,
     allow_genus: bool,
     keep_largest: bool,
     close: u32,
     unit: Option<String>,
     chunk: u64,
-    mem: &str,
+    mem: MemBudget,
     scratch: &str,
     raw_shape: Option<[u64; 3]>,
     raw_dtype: Option<&str>,
     surface: &str,
-    probe: Vec<f64>,
+    probe: &[f64],
     model: Option<u32>,
     keep_hetatm: bool,
     radius: Option<f64>,
-    progress: Option<Bound<'_, PyAny>>,
-) -> PyResult<String> {
+) -> PyResult<(harmap::voxelize::VoxelizeOptions, InputOptions)> {
     use harmap::voxelize::spheres::MolSurface;
-    use harmap::voxelize::{Scratch, VoxelizeOptions};
+    use harmap::voxelize::{Scratch, TopologyMode, VoxelizeOptions};
     if resolution.is_some() && spacing.is_some() {
         return Err(usage(
             "the argument '--resolution <N>' cannot be used with '--spacing <H>'",
@@ -252,12 +249,13 @@ fn voxelize(
         resolution,
         spacing,
         padding,
-        center,
+        // As `harmap run` does for the starfish: its middle is the center.
+        center: center.or(starfish.then_some([0.0, 0.0, 0.0])),
         center_radius,
         allow_genus,
         keep_largest,
         chunk,
-        mem: mem_budget(mem)?,
+        mem,
         unit,
         scratch: match scratch {
             "auto" => Scratch::Auto,
@@ -274,8 +272,12 @@ fn voxelize(
         probe: probe[0],
         close,
         probe_ladder: probe[1..].to_vec(),
-        // The CLI's default (repair voxel-scale artifacts; refuse a mesh with real handles).
-        topology: harmap::voxelize::TopologyMode::default(),
+        topology: match topology {
+            "auto" => TopologyMode::Auto,
+            "repair" => TopologyMode::Repair,
+            "strict" => TopologyMode::Strict,
+            t => return Err(usage(format!("topology '{t}': use auto, repair or strict"))),
+        },
         skip_handle_search: false,
     };
     let iopts = InputOptions {
@@ -287,21 +289,86 @@ fn voxelize(
             radius,
         },
     };
-    let mut opts = opts;
-    if path.is_none() && opts.center.is_none() {
-        // As `harmap run` does for the starfish: its middle is the center.
-        opts.center = Some([0.0, 0.0, 0.0]);
-    }
-    let r = detached(py, progress.as_ref(), None, |p| {
-        let source = path
-            .as_ref()
-            .map_or(harmap::pipeline::Source::Starfish, |f| {
-                harmap::pipeline::Source::File(f, &iopts)
-            });
-        harmap::pipeline::voxelize_new_run(&source, &opts, &out, force, p)
+    Ok((opts, iopts))
+}
+
+/// Voxelize `path` (None: the built-in starfish) into a new run at `out`. Options as
+/// `harmap voxelize`'s flags; returns the voxelize report as JSON text.
+#[pyfunction]
+#[pyo3(signature = (path, out, *, force=false, resolution=None, spacing=None, padding=6,
+    center=None, center_radius=2.0, topology="auto", allow_genus=false, keep_largest=false,
+    close=0, unit=None, chunk=64, mem="1GiB", scratch="auto", raw_shape=None,
+    raw_dtype=None, surface="ses", probe=vec![1.4], model=None, keep_hetatm=false,
+    radius=None, progress=None))]
+#[allow(clippy::too_many_arguments, clippy::fn_params_excessive_bools)]
+fn voxelize(
+    py: Python<'_>,
+    path: Option<PathBuf>,
+    out: PathBuf,
+    force: bool,
+    resolution: Option<u64>,
+    spacing: Option<f64>,
+    padding: u64,
+    center: Option<[f64; 3]>,
+    center_radius: f64,
+    topology: &str,
+    allow_genus: bool,
+    keep_largest: bool,
+    close: u32,
+    unit: Option<String>,
+    chunk: u64,
+    mem: &str,
+    scratch: &str,
+    raw_shape: Option<[u64; 3]>,
+    raw_dtype: Option<&str>,
+    surface: &str,
+    probe: Vec<f64>,
+    model: Option<u32>,
+    keep_hetatm: bool,
+    radius: Option<f64>,
+    progress: Option<Bound<'_, PyAny>>,
+) -> PyResult<String> {
+    let (opts, iopts) = voxelize_options(
+        path.is_none(),
+        resolution,
+        spacing,
+        padding,
+        center,
+        center_radius,
+        topology,
+        allow_genus,
+        keep_largest,
+        close,
+        unit,
+        chunk,
+        mem_budget(mem)?,
+        scratch,
+        raw_shape,
+        raw_dtype,
+        surface,
+        &probe,
+        model,
+        keep_hetatm,
+        radius,
+    )?;
+    let r = detached(py, progress.as_ref(), |p| {
+        harmap::pipeline::voxelize_new_run(
+            &source_of(path.as_deref(), &iopts),
+            &opts,
+            &out,
+            force,
+            p,
+        )
     })?;
     let (_, report) = r.map_err(|e| harmap_err(py, &e))?;
     Ok(json_str(&report))
+}
+
+/// The shape `path` names (None: the built-in starfish).
+fn source_of<'a>(path: Option<&'a Path>, iopts: &'a InputOptions) -> harmap::pipeline::Source<'a> {
+    path.map_or(harmap::pipeline::Source::Starfish, |f| {
+        harmap::pipeline::Source::File(f, iopts)
+    })
 }
 
 /// Move the file `file` into the run (as `input.<ext>`) and point the run's input at
@@ -329,6 +396,39 @@ fn adopt_input(py: Python<'_>, run: PathBuf, file: PathBuf, name: String) -> PyR
     Ok(abs.display().to_string())
 }
 
+/// The solve's options from the keyword arguments of `harmap.solve` and `harmap.run`.
+#[allow(clippy::too_many_arguments)]
+fn solve_options(
+    method: &str,
+    rtol: f64,
+    tol: f64,
+    eps: f64,
+    max_iter: u64,
+    omega: Option<f64>,
+    checkpoint_every: f64,
+    mem: MemBudget,
+    resume: bool,
+) -> PyResult<harmap::solve::SolveOptions> {
+    use harmap::solve::driver::Method;
+    Ok(harmap::solve::SolveOptions {
+        method: match method {
+            "multigrid" => Method::Multigrid,
+            "sor" => Method::Sor,
+            "jacobi" => Method::Jacobi,
+            m => return Err(usage(format!("method '{m}': use multigrid, sor or jacobi"))),
+        },
+        tol,
+        rtol,
+        eps,
+        max_iter,
+        omega,
+        mem,
+        checkpoint_every,
+        resume,
+        ..harmap::solve::SolveOptions::default()
+    })
+}
+
 /// Solve for phi, as `harmap solve`. Ctrl-C writes a checkpoint and raises
 /// KeyboardInterrupt; `resume=True` continues from it.
 #[pyfunction]
@@ -349,28 +449,20 @@ fn solve(
     resume: bool,
     progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<String> {
-    use harmap::solve::driver::Method;
-    let opts = harmap::solve::SolveOptions {
-        method: match method {
-            "multigrid" => Method::Multigrid,
-            "sor" => Method::Sor,
-            "jacobi" => Method::Jacobi,
-            m => return Err(usage(format!("method '{m}': use multigrid, sor or jacobi"))),
-        },
-        tol,
+    let opts = solve_options(
+        method,
         rtol,
+        tol,
         eps,
         max_iter,
         omega,
-        mem: mem_budget(mem)?,
         checkpoint_every,
+        mem_budget(mem)?,
         resume,
-        ..harmap::solve::SolveOptions::default()
-    };
+    )?;
     let r = open(py, &run)?;
-    let stop = AtomicBool::new(false);
-    let (res, raised) = detached_raw(py, progress.as_ref(), Some(&stop), |p| {
-        harmap::solve::solve(&r, &opts, &stop, p)
+    let (res, raised) = detached_raw(py, progress.as_ref(), |p| {
+        harmap::solve::solve(&r, &opts, p.interrupt.flag(), p)
     });
     match (res, raised) {
         // The library's message (it names the checkpoint), as KeyboardInterrupt.
@@ -395,10 +487,53 @@ fn open(py: Python<'_>, run: &Path) -> PyResult<RunDir> {
     RunDir::open(run).map_err(|e| harmap_err(py, &e.into()))
 }
 
-/// Trace streamlines, as `harmap trace` (whose default seeds are boundary voxels).
+/// The trace's options from the keyword arguments of `harmap.trace` and `harmap.run`,
+/// built as the command line builds them (src/cli/trace.rs): `atol` and `level_step`
+/// default by the seeds.
+#[allow(clippy::too_many_arguments)]
+fn trace_options(
+    seeds: &str,
+    sample: Option<u64>,
+    stop_radius: Option<f64>,
+    tile: Option<u64>,
+    mem: MemBudget,
+    atol: Option<f64>,
+    rtol: f64,
+    h_min: f64,
+    h_max: f64,
+    max_steps: u32,
+    level_step: Option<f64>,
+) -> PyResult<harmap::trace::TraceOptions> {
+    use harmap::trace::{Rk45, SeedKind, TraceOptions};
+    let seeds = match seeds {
+        "boundary" => SeedKind::Boundary,
+        "surface" => SeedKind::Surface,
+        s => return Err(usage(format!("seeds '{s}': use surface or boundary"))),
+    };
+    let default = Rk45::for_seeds(seeds);
+    Ok(TraceOptions {
+        seeds,
+        sample,
+        stop_radius,
+        tile,
+        mem,
+        rk: Rk45 {
+            atol: atol.unwrap_or(default.atol),
+            rtol,
+            h_min,
+            h_max,
+            max_steps,
+            level_step: level_step.unwrap_or(default.level_step),
+            level_after: default.level_after,
+        },
+    })
+}
+
+/// Trace streamlines, as `harmap trace` (whose default seeds are the surface's
+/// vertices, as `harmap run`'s).
 #[pyfunction]
-#[pyo3(signature = (run, *, seeds="boundary", sample=None, stop_radius=None, tile=None,
-    mem="1GiB", atol=None, rtol=None, h_min=None, h_max=None, max_steps=None,
+#[pyo3(signature = (run, *, seeds="surface", sample=None, stop_radius=None, tile=None,
+    mem="1GiB", atol=None, rtol=0.0, h_min=1e-6, h_max=2.0, max_steps=20_000,
     level_step=None, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn trace(
@@ -410,43 +545,49 @@ fn trace(
     tile: Option<u64>,
     mem: &str,
     atol: Option<f64>,
-    rtol: Option<f64>,
-    h_min: Option<f64>,
-    h_max: Option<f64>,
-    max_steps: Option<u32>,
+    rtol: f64,
+    h_min: f64,
+    h_max: f64,
+    max_steps: u32,
     level_step: Option<f64>,
     progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<String> {
-    use harmap::trace::{Rk45, SeedKind, TraceOptions};
-    let seeds = match seeds {
-        "boundary" => SeedKind::Boundary,
-        "surface" => SeedKind::Surface,
-        s => return Err(usage(format!("seeds '{s}': use boundary or surface"))),
-    };
-    // As the command line builds them (src/cli/trace.rs).
-    let default = Rk45::for_seeds(seeds);
-    let base = Rk45::default();
-    let opts = TraceOptions {
+    let opts = trace_options(
         seeds,
         sample,
         stop_radius,
         tile,
-        mem: mem_budget(mem)?,
-        rk: Rk45 {
-            atol: atol.unwrap_or(default.atol),
-            rtol: rtol.unwrap_or(base.rtol),
-            h_min: h_min.unwrap_or(base.h_min),
-            h_max: h_max.unwrap_or(base.h_max),
-            max_steps: max_steps.unwrap_or(base.max_steps),
-            level_step: level_step.unwrap_or(default.level_step),
-            level_after: default.level_after,
-        },
-    };
+        mem_budget(mem)?,
+        atol,
+        rtol,
+        h_min,
+        h_max,
+        max_steps,
+        level_step,
+    )?;
     let r = open(py, &run)?;
-    let rep = detached(py, progress.as_ref(), None, |p| {
+    // Stop radii that cannot work are refused before anything is traced, as the
+    // command line does.
+    let attrs = r.attrs().map_err(|e| harmap_err(py, &e.into()))?;
+    harmap::pipeline::check_stop_radius(&attrs, opts.stop_radius)
+        .map_err(|e| harmap_err(py, &e))?;
+    let rep = detached(py, progress.as_ref(), |p| {
         harmap::trace::trace(&r, &opts, p)
     })?;
     rep.map(|x| json_str(&x)).map_err(|e| harmap_err(py, &e))
+}
+
+/// The map's options: the method, the trace's stop ball, the budget.
+fn map_options(exact: bool, stop_radius: Option<f64>, mem: MemBudget) -> harmap::map::MapOptions {
+    harmap::map::MapOptions {
+        method: if exact {
+            harmap::map::MapMethod::Exact
+        } else {
+            harmap::map::MapMethod::Upwind
+        },
+        stop_radius,
+        mem,
+    }
 }
 
 /// Map every voxel, as `harmap map` (the stop ball of the trace).
@@ -461,22 +602,175 @@ fn map(
 ) -> PyResult<String> {
     let r = open(py, &run)?;
     let attrs = r.attrs().map_err(|e| harmap_err(py, &e.into()))?;
-    let stop_radius = attrs
-        .pointer("/stages/trace/options/stop_radius")
-        .and_then(serde_json::Value::as_f64);
-    let opts = harmap::map::MapOptions {
-        method: if exact {
-            harmap::map::MapMethod::Exact
-        } else {
-            harmap::map::MapMethod::Upwind
-        },
-        stop_radius,
-        mem: mem_budget(mem)?,
-    };
-    let rep = detached(py, progress.as_ref(), None, |p| {
-        harmap::map::map(&r, &opts, p)
-    })?;
+    let stop_radius = harmap::run::options_in::<harmap::trace::TraceOptions>(&attrs, "trace")
+        .and_then(|t| t.stop_radius);
+    let opts = map_options(exact, stop_radius, mem_budget(mem)?);
+    let rep = detached(py, progress.as_ref(), |p| harmap::map::map(&r, &opts, p))?;
     rep.map(|x| json_str(&x)).map_err(|e| harmap_err(py, &e))
+}
+
+/// The whole pipeline, as `harmap run`, through the library's
+/// [`harmap::pipeline::run`]: stages done alike are skipped, stale ones run again, an
+/// interrupted solve is continued, a run of another input or other voxelization
+/// options is refused unless `force`, and the atlas and the report page are written
+/// beside the run (`atlas`, `report`). Returns the stages and what was done with each,
+/// as JSON text.
+#[pyfunction]
+#[pyo3(signature = (path, out, *, force=false, resolution=None, spacing=None, padding=6,
+    center=None, center_radius=2.0, topology="auto", allow_genus=false, keep_largest=false,
+    close=0, unit=None, chunk=64, mem="1GiB", scratch="auto", raw_shape=None,
+    raw_dtype=None, surface="ses", probe=vec![1.4], model=None, keep_hetatm=false,
+    radius=None, method="multigrid", rtol=1e-6, tol=0.0, eps=1e-4, max_iter=1000,
+    omega=None, checkpoint_every=300.0, seeds="surface", sample=None, stop_radius=None,
+    tile=None, atol=None, h_min=1e-6, h_max=2.0, max_steps=20_000, level_step=None,
+    trace_rtol=0.0, exact=false, atlas=None, report=None, progress=None))]
+#[allow(clippy::too_many_arguments, clippy::fn_params_excessive_bools)]
+fn run(
+    py: Python<'_>,
+    path: Option<PathBuf>,
+    out: PathBuf,
+    force: bool,
+    resolution: Option<u64>,
+    spacing: Option<f64>,
+    padding: u64,
+    center: Option<[f64; 3]>,
+    center_radius: f64,
+    topology: &str,
+    allow_genus: bool,
+    keep_largest: bool,
+    close: u32,
+    unit: Option<String>,
+    chunk: u64,
+    mem: &str,
+    scratch: &str,
+    raw_shape: Option<[u64; 3]>,
+    raw_dtype: Option<&str>,
+    surface: &str,
+    probe: Vec<f64>,
+    model: Option<u32>,
+    keep_hetatm: bool,
+    radius: Option<f64>,
+    method: &str,
+    rtol: f64,
+    tol: f64,
+    eps: f64,
+    max_iter: u64,
+    omega: Option<f64>,
+    checkpoint_every: f64,
+    seeds: &str,
+    sample: Option<u64>,
+    stop_radius: Option<f64>,
+    tile: Option<u64>,
+    atol: Option<f64>,
+    h_min: f64,
+    h_max: f64,
+    max_steps: u32,
+    level_step: Option<f64>,
+    trace_rtol: f64,
+    exact: bool,
+    atlas: Option<PathBuf>,
+    report: Option<PathBuf>,
+    progress: Option<Bound<'_, PyAny>>,
+) -> PyResult<String> {
+    use harmap::pipeline::{PipelineError, PipelineOptions, StageRun};
+    let mem = mem_budget(mem)?;
+    let (voxelize, iopts) = voxelize_options(
+        path.is_none(),
+        resolution,
+        spacing,
+        padding,
+        center,
+        center_radius,
+        topology,
+        allow_genus,
+        keep_largest,
+        close,
+        unit,
+        chunk,
+        mem,
+        scratch,
+        raw_shape,
+        raw_dtype,
+        surface,
+        &probe,
+        model,
+        keep_hetatm,
+        radius,
+    )?;
+    let opts = PipelineOptions {
+        out: out.clone(),
+        force,
+        voxelize,
+        solve: solve_options(
+            method,
+            rtol,
+            tol,
+            eps,
+            max_iter,
+            omega,
+            checkpoint_every,
+            mem,
+            false,
+        )?,
+        trace: trace_options(
+            seeds,
+            sample,
+            stop_radius,
+            tile,
+            mem,
+            atol,
+            trace_rtol,
+            h_min,
+            h_max,
+            max_steps,
+            level_step,
+        )?,
+        map: map_options(exact, None, mem),
+        atlas,
+        report,
+    };
+    let (res, raised) = detached_raw(py, progress.as_ref(), |p| {
+        harmap::pipeline::run(&source_of(path.as_deref(), &iopts), &opts, p)
+    });
+    let rep = match (res, raised) {
+        (Err(PipelineError::Interrupted { run, stage, .. }), Some(k))
+            if k.is_instance_of::<PyKeyboardInterrupt>(py) =>
+        {
+            return Err(PyKeyboardInterrupt::new_err(format!(
+                "{}: stopped during the {stage} stage; the finished stages are kept. \
+                 Call harmap.run again with the same arguments to continue",
+                run.display()
+            )))
+        }
+        (_, Some(k)) => return Err(k),
+        (Ok(r), None) => r,
+        (Err(PipelineError::Stage(e)), None) => return Err(harmap_err(py, &e)),
+        (Err(e), None) => {
+            let err = HarmapError::new_err(e.to_string());
+            let _ = err.value(py).setattr("bad_input", e.is_bad_input());
+            return Err(err);
+        }
+    };
+    let stages: serde_json::Map<String, serde_json::Value> = rep
+        .stages
+        .iter()
+        .map(|(name, how)| {
+            let v = match how {
+                StageRun::Skipped => serde_json::json!({"skipped": true}),
+                StageRun::Ran { again, resumed } => {
+                    serde_json::json!({"skipped": false, "again": again, "resumed": resumed})
+                }
+            };
+            ((*name).to_owned(), v)
+        })
+        .collect();
+    Ok(json_str(&serde_json::json!({
+        "run": rep.run,
+        "stages": stages,
+        "atlas": rep.atlas,
+        "atlas_fallback": rep.atlas_fallback,
+        "report": rep.report,
+    })))
 }
 
 /// Draw the atlas (or with `sphere` the sphere view) of a traced run to `dest`.
@@ -505,7 +799,7 @@ fn atlas(
             )))
         }
     };
-    let n = detached(py, None, None, |_| {
+    let n = detached(py, None, |_| {
         match harmap::report::atlas(&r, &dest, sphere, &by) {
             // As `harmap run`: the main axis when a molecule's residues cannot be had.
             Err(e) if color.is_none() && by != ColorBy::Axis && e.is_bad_input() => {
@@ -521,10 +815,8 @@ fn atlas(
 #[pyfunction]
 fn report_page(py: Python<'_>, run: PathBuf, dest: PathBuf) -> PyResult<()> {
     let r = open(py, &run)?;
-    detached(py, None, None, |_| {
-        harmap::report::html::write_report(&r, &dest)
-    })?
-    .map_err(|e| harmap_err(py, &e))
+    detached(py, None, |_| harmap::report::html::write_report(&r, &dest))?
+        .map_err(|e| harmap_err(py, &e))
 }
 
 /// Export, as `harmap export`: format csv, obj-sphere, vtk-streamlines, nifti, vti, dx
@@ -579,7 +871,7 @@ fn export(
             )))
         }
     };
-    let res = detached(py, progress.as_ref(), None, |p| match (format, fmt) {
+    let res = detached(py, progress.as_ref(), |p| match (format, fmt) {
         ("csv", _) => harmap::export::seeds_csv(&r, &dest),
         ("obj-sphere", _) => harmap::export::obj_sphere(&r, &dest),
         ("vtk-streamlines", _) => harmap::export::vtk_streamlines(&r, &dest, sample, mem, p),
@@ -622,7 +914,7 @@ fn inverse<'py>(
     }
     let mem = mem_budget(mem)?;
     let r = open(py, &run)?;
-    let res = detached(py, progress.as_ref(), None, |p| {
+    let res = detached(py, progress.as_ref(), |p| {
         // The map's stop ball, as inverse_csv takes it.
         let attrs = r.attrs()?;
         let stop_radius = attrs
@@ -679,6 +971,7 @@ fn _harmap(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(solve, m)?)?;
     m.add_function(wrap_pyfunction!(trace, m)?)?;
     m.add_function(wrap_pyfunction!(map, m)?)?;
+    m.add_function(wrap_pyfunction!(run, m)?)?;
     m.add_function(wrap_pyfunction!(atlas, m)?)?;
     m.add_function(wrap_pyfunction!(report_page, m)?)?;
     m.add_function(wrap_pyfunction!(export, m)?)?;

@@ -107,6 +107,38 @@ def test_sigint_during_solve_raises_keyboardinterrupt_and_resumes_to_the_same_by
     assert field_bytes(run, "phi") == field_bytes(again, "phi")
 
 
+def test_sigint_during_trace_raises_keyboardinterrupt_within_a_second(tmp_path):
+    vol = np.zeros((40, 40, 40), np.uint8)
+    z, y, x = np.mgrid[:40, :40, :40] - 19.5
+    vol[x * x + y * y + z * z <= 16 * 16] = 1
+    run = tmp_path / "ball.harmap"
+    harmap.voxelize(vol, run, progress=False)
+    harmap.solve(run, progress=False)
+    # Boundary seeds with tiny steps: far more than 2 s of tracing.
+    script = textwrap.dedent(
+        f"""
+        import sys, time, harmap
+        print("tracing", flush=True)
+        try:
+            harmap.trace({str(run)!r}, seeds="boundary", h_max=0.002, max_steps=10**6, progress=False)
+        except KeyboardInterrupt:
+            print("KeyboardInterrupt", time.time(), flush=True)
+            sys.exit(42)
+        print("finished before the signal", flush=True)
+        """
+    )
+    p = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip() == "tracing"
+    time.sleep(2.0)
+    sent = time.time()
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=120)
+    assert p.returncode == 42, out + err
+    answered = float(out.split()[1]) - sent
+    assert answered < 1.5, f"the trace took {answered:.2f} s to stop"
+    assert not harmap.open(run).done("trace")
+
+
 def test_import_and_open_take_under_0_2_s(spot_runs):
     code = textwrap.dedent(
         f"""

@@ -8,6 +8,7 @@ mod atlas;
 mod bench;
 mod exit;
 mod export;
+mod flags;
 mod info;
 mod inverse;
 mod map;
@@ -87,6 +88,8 @@ enum Command {
     Info(info::Args),
     Report(report::Args),
     Bench(bench::Args),
+    #[command(hide = true)]
+    Flags(flags::Args),
 }
 
 /// A usage or input error found by the CLI itself (exit code 2).
@@ -176,5 +179,6 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Info(a) => info::run(&a, &global),
         Command::Report(a) => report::run(&a, &global),
         Command::Bench(a) => bench::run(&a, &global),
+        Command::Flags(a) => flags::run(&a, &global),
     }
 }

@@ -70,10 +70,10 @@ pub struct VoxelizeArgs {
     pub center_radius: f64,
     /// When the voxel solid is not one genus-0 piece: repair it (drop specks, cut or
     /// fill handles with as few voxel changes as possible, and report them) or refuse
-    /// (strict). Default: repair, except a mesh whose own surface has handles (refused
+    /// (strict). auto: repair, except a mesh whose own surface has handles (refused
     /// unless --topology repair is given).
-    #[arg(long, value_enum, value_name = "MODE")]
-    pub topology: Option<TopologyArg>,
+    #[arg(long, value_enum, value_name = "MODE", default_value_t = TopologyArg::Auto)]
+    pub topology: TopologyArg,
     /// Go on with the raw solid when it has handles (genus > 0) or several pieces (no
     /// repair).
     #[arg(long)]
@@ -147,6 +147,8 @@ pub enum SurfaceArg {
 /// `--topology` values.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum TopologyArg {
+    /// Repair, except a mesh whose own surface has handles (refused, as strict).
+    Auto,
     /// Make the solid one genus-0 piece, reporting every change.
     Repair,
     /// Refuse a solid that is not one genus-0 piece.
@@ -227,9 +229,9 @@ impl VoxelizeArgs {
                 probe_ladder: self.probe[1..].to_vec(),
                 skip_handle_search: false,
                 topology: match self.topology {
-                    None => TopologyMode::Auto,
-                    Some(TopologyArg::Repair) => TopologyMode::Repair,
-                    Some(TopologyArg::Strict) => TopologyMode::Strict,
+                    TopologyArg::Auto => TopologyMode::Auto,
+                    TopologyArg::Repair => TopologyMode::Repair,
+                    TopologyArg::Strict => TopologyMode::Strict,
                 },
             },
             InputOptions {
