@@ -38,6 +38,15 @@ pub(super) fn title(run: &RunDir, t: &SeedTable) -> String {
     if let Some(c) = r.and_then(|r| r.pointer("/collisions/seeds")) {
         let _ = write!(s, "; {c} collisions");
     }
+    if let Some(c) = r.and_then(|r| r.pointer("/indistinguishable/seeds")) {
+        let _ = write!(s, "; {c} indistinguishable");
+    }
+    if let Some(f) = a
+        .pointer("/stages/map/result/folded")
+        .filter(|f| !f.is_null())
+    {
+        let _ = write!(s, "; {} folded voxels", f["voxels"]);
+    }
     s
 }
 
