@@ -45,9 +45,16 @@ pub(super) fn title(run: &RunDir, t: &SeedTable) -> String {
         .pointer("/stages/map/result/folded")
         .filter(|f| !f.is_null())
     {
-        let _ = write!(s, "; {} folded voxels", f["voxels"]);
+        let _ = write!(s, "; {} voxels folded", f["voxels"]);
     }
     s
+}
+
+/// The title's font size: 20 pixels, smaller where a long title would not fit `width`
+/// pixels (about 0.5 em a character).
+pub(super) fn title_size(title: &str, width: u32) -> u32 {
+    let chars = title.chars().count().max(1) as u32;
+    (2 * width / chars).clamp(11, 20)
 }
 
 /// Write `draw`'s picture to `dest` (PNG or SVG by extension) through a temporary file.
@@ -133,7 +140,7 @@ pub(super) fn draw_atlas<DB: DrawingBackend>(
     let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
     root.fill(&WHITE).map_err(e)?;
     let mut chart = ChartBuilder::on(root)
-        .caption(title, ("sans-serif", 20))
+        .caption(title, ("sans-serif", title_size(title, 1200)))
         .margin(14)
         .x_label_area_size(44)
         .y_label_area_size(56)
