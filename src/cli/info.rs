@@ -92,6 +92,7 @@ fn summary(attrs: &Value) -> Value {
             "mean_steps": v["mean_steps"],
             "stop_radius": v["stop_radius"],
             "collisions": v["collisions"],
+            "indistinguishable": v["indistinguishable"],
             "surface": v["surface"],
         });
     }
@@ -278,6 +279,14 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
             "sphere:   {} seeds within {} degrees of a seed more than {} voxels away",
             v["collisions"]["seeds"], v["collisions"]["angle_deg"], v["collisions"]["far_voxels"],
         )?;
+        if let Some(d) = v.get("indistinguishable").filter(|d| !d.is_null()) {
+            writeln!(
+                out,
+                "          {} seeds whose stored arrival directions ({}) equal those of a seed from elsewhere",
+                d["seeds"],
+                d["precision"].as_str().unwrap_or("?")
+            )?;
+        }
         if let Some(m) = v.get("surface").filter(|m| !m.is_null()) {
             let q = |k: &str, f: &str| m[k][f].as_f64().unwrap_or(f64::NAN);
             writeln!(
@@ -315,6 +324,12 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
         }
         writeln!(out, "), stop radius {} voxels", v["stop_radius"])?;
         boundary_line(&mut out, "map field:", &v)?;
+        if let Some(f) = v
+            .get("folded")
+            .and_then(|f| serde_json::from_value::<harmap::map::Folded>(f.clone()).ok())
+        {
+            writeln!(out, "folds:    {}", super::map::folded_line(&f))?;
+        }
     }
     Ok(())
 }

@@ -81,6 +81,41 @@ pub fn summary(r: &MapReport, seconds: f64) -> String {
             u.rounds[0] + u.rounds[1]
         );
     }
+    if let Some(f) = &r.folded {
+        let _ = write!(s, "; {}", folded_line(f));
+    }
+    s
+}
+
+/// The folded voxels and where the largest clusters of them are.
+#[must_use]
+pub fn folded_line(f: &harmap::map::Folded) -> String {
+    let mut s = format!(
+        "{} of {} voxels outside the stop ball folded (negative Jacobian), {} degenerate",
+        f.voxels, f.measured, f.degenerate
+    );
+    if !f.clusters.is_empty() {
+        let c: Vec<String> = f
+            .clusters
+            .iter()
+            .map(|c| {
+                format!(
+                    "{} at ({:.4}, {:.4}, {:.4})",
+                    c.voxels, c.center[0], c.center[1], c.center[2]
+                )
+            })
+            .collect();
+        let _ = write!(
+            s,
+            "; largest clusters{}: {}",
+            if f.clusters_partial {
+                " (of the first voxels)"
+            } else {
+                ""
+            },
+            c.join(", ")
+        );
+    }
     s
 }
 
@@ -94,8 +129,23 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     });
     let t = std::time::Instant::now();
     let r = map(&run, &a.opts.options(stop_radius, a.mem), &Bars::new(g))?;
+    // Beside the folded voxels, the sphere map's flipped triangles when traced.
+    let flips = run
+        .attrs()
+        .ok()
+        .and_then(|v| {
+            v.pointer("/stages/trace/result/surface")
+                .filter(|m| !m.is_null())
+                .map(|m| {
+                    format!(
+                        "; the sphere map: {} of {} triangles flipped",
+                        m["flipped"], m["measured"]
+                    )
+                })
+        })
+        .unwrap_or_default();
     g.say(&format!(
-        "{}: {}; fields in {} and {}",
+        "{}: {}{flips}; fields in {} and {}",
         a.run.display(),
         summary(&r, t.elapsed().as_secs_f64()),
         run.root().join("theta").display(),

@@ -12,6 +12,7 @@
 //!
 //! Files: `stage` (the stage: checks, budget, record), [`upwind`] (the transport),
 //! `exact` (a streamline per voxel), `angles` (theta and psi written block by block),
+//! `folds` (voxels where the map folds),
 //! [`inverse`] (from (phi, theta, psi) back to a point), `error`.
 //!
 //! Across processes ([`map_with`] and a [`crate::grid::Decomposition`]) each part maps
@@ -22,6 +23,7 @@
 mod angles;
 mod error;
 mod exact;
+mod folds;
 pub mod inverse;
 mod stage;
 pub mod upwind;
@@ -34,6 +36,7 @@ use upwind::TransportStats;
 
 pub use error::MapError;
 pub use exact::exact_integrator;
+pub use folds::{FoldCluster, Folded};
 pub use stage::{map, map_with};
 
 /// How the full-volume map is computed.
@@ -85,4 +88,7 @@ pub struct MapReport {
     /// The integrator of the exact map's streamlines, which `harmap inverse` undoes.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub integrator: Option<Rk45>,
+    /// The voxels where the map x -> ball point folds (a negative Jacobian determinant),
+    /// outside the stop ball; counted in one process only (None across processes).
+    pub folded: Option<Folded>,
 }

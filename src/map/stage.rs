@@ -6,6 +6,7 @@ use std::time::Instant;
 
 use super::angles::Angles;
 use super::exact::exact;
+use super::folds::folded;
 use super::upwind::{self, Directions, TransportStats};
 use super::{exact::exact_integrator, MapError, MapMethod, MapOptions, MapReport};
 use crate::grid::{
@@ -90,6 +91,38 @@ pub fn map_with(
         }
     };
     let _ = std::fs::remove_dir_all(&scratch);
+    // Folded voxels, when this process holds every block (their halos read the
+    // neighbours' theta and psi, which other parts write at their own pace).
+    let owned = decomp.owned(&spec);
+    let folded = if owned.len() as u64 == spec.num_blocks() {
+        let u = run.open_image::<f64>("u")?;
+        Some(match opts.method {
+            MapMethod::Upwind => folded::<f32>(
+                &u,
+                &labels,
+                &run.open_image::<f32>("theta")?,
+                &run.open_image::<f32>("psi")?,
+                f64::from,
+                &ball,
+                &owned,
+                opts.mem,
+                progress,
+            )?,
+            MapMethod::Exact => folded::<f64>(
+                &u,
+                &labels,
+                &run.open_image::<f64>("theta")?,
+                &run.open_image::<f64>("psi")?,
+                |v| v,
+                &ball,
+                &owned,
+                opts.mem,
+                progress,
+            )?,
+        })
+    } else {
+        None
+    };
     let report = MapReport {
         method: opts.method,
         voxels,
@@ -100,6 +133,7 @@ pub fn map_with(
         integrator: stops.is_some().then(exact_integrator),
         stops,
         seconds_directions,
+        folded,
     };
     run.record_stage("map", t0.elapsed().as_secs_f64(), opts, &report)?;
     Ok(report)

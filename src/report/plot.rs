@@ -34,6 +34,12 @@ pub(super) fn title(run: &RunDir, t: &SeedTable) -> String {
         if let Some(c) = r.collisions {
             let _ = write!(s, "; {} collisions", c.seeds);
         }
+        if let Some(c) = r.indistinguishable {
+            let _ = write!(s, "; {} indistinguishable", c.seeds);
+        }
+    }
+    if let Some(f) = crate::run::report_in::<Folds>(&a, "map").and_then(|m| m.folded) {
+        let _ = write!(s, "; {} voxels folded", f.voxels);
     }
     s
 }
@@ -43,6 +49,19 @@ pub(super) fn title(run: &RunDir, t: &SeedTable) -> String {
 struct Bijectivity {
     surface: Option<Flips>,
     collisions: Option<CollidingSeeds>,
+    indistinguishable: Option<CollidingSeeds>,
+}
+
+/// The map's folded voxels, of its report.
+#[derive(serde::Deserialize)]
+struct Folds {
+    folded: Option<FoldCount>,
+}
+
+/// Of the map report's `folded`.
+#[derive(serde::Deserialize)]
+struct FoldCount {
+    voxels: u64,
 }
 
 /// Of [`crate::trace::metrics::SurfaceMetrics`].
@@ -56,6 +75,13 @@ struct Flips {
 #[derive(serde::Deserialize)]
 struct CollidingSeeds {
     seeds: u64,
+}
+
+/// The title's font size: 20 pixels, smaller where a long title would not fit `width`
+/// pixels (about 0.5 em a character).
+pub(super) fn title_size(title: &str, width: u32) -> u32 {
+    let chars = title.chars().count().max(1) as u32;
+    (2 * width / chars).clamp(11, 20)
 }
 
 /// Write `draw`'s picture to `dest` (PNG or SVG by extension) through a temporary file.
@@ -141,7 +167,7 @@ pub(super) fn draw_atlas<DB: DrawingBackend>(
     let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
     root.fill(&WHITE).map_err(e)?;
     let mut chart = ChartBuilder::on(root)
-        .caption(title, ("sans-serif", 20))
+        .caption(title, ("sans-serif", title_size(title, 1200)))
         .margin(14)
         .x_label_area_size(44)
         .y_label_area_size(56)

@@ -23,7 +23,9 @@ pub(super) fn draw_sphere<DB: DrawingBackend>(
 ) -> Result<(), String> {
     let e = |x: DrawingAreaErrorKind<DB::ErrorType>| x.to_string();
     root.fill(&WHITE).map_err(e)?;
-    let root = root.titled(title, ("sans-serif", 20)).map_err(e)?;
+    let root = root
+        .titled(title, ("sans-serif", super::plot::title_size(title, 1600)))
+        .map_err(e)?;
     let panels = root.split_evenly((1, 4));
     let pts: Vec<(DVec3, RGBColor)> = (0..t.position.len())
         .filter_map(|i| t.sphere(i).map(|s| (s, c[i])))

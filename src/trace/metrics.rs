@@ -74,6 +74,47 @@ pub struct Collisions {
     pub seeds: u64,
 }
 
+/// Seeds whose stored arrival direction cannot be told from another's.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Indistinguishable {
+    /// The stored precision of theta and psi ("float64").
+    pub precision: &'static str,
+    /// Seeds whose stored (theta, psi) equal, bit for bit, those of a seed from another
+    /// place (another position).
+    pub seeds: u64,
+}
+
+/// Count the seeds whose stored angles `(theta, psi)` (NaN unless reached) equal those
+/// of a seed at another position.
+#[must_use]
+pub fn indistinguishable(positions: &[DVec3], theta: &[f64], psi: &[f64]) -> Indistinguishable {
+    let mut keyed: Vec<(u64, u64, usize)> = (0..theta.len())
+        .filter(|&i| theta[i].is_finite() && psi[i].is_finite())
+        // +0 and -0 are one stored direction.
+        .map(|i| ((theta[i] + 0.0).to_bits(), (psi[i] + 0.0).to_bits(), i))
+        .collect();
+    keyed.par_sort_unstable();
+    let mut seeds = 0u64;
+    let mut a = 0;
+    while a < keyed.len() {
+        let mut b = a + 1;
+        while b < keyed.len() && keyed[b].0 == keyed[a].0 && keyed[b].1 == keyed[a].1 {
+            b += 1;
+        }
+        let group = &keyed[a..b];
+        for &(_, _, i) in group {
+            if group.iter().any(|&(_, _, j)| positions[j] != positions[i]) {
+                seeds += 1;
+            }
+        }
+        a = b;
+    }
+    Indistinguishable {
+        precision: "float64",
+        seeds,
+    }
+}
+
 /// Flips and distortion of the map `sphere[v]` (unit vectors; `None` where the seed did
 /// not reach the center) of a surface whose triangles face outward.
 #[must_use]
@@ -326,6 +367,26 @@ mod tests {
         assert_eq!(s.flipped, 0);
         assert!(s.conformal.max > 1.5, "{:?}", s.conformal);
         assert!(s.log_area_ratio.p95 - s.log_area_ratio.p05 > 0.5);
+    }
+
+    #[test]
+    fn seeds_with_equal_stored_angles_from_other_places_are_indistinguishable() {
+        let pos = vec![
+            DVec3::ZERO,
+            DVec3::X,
+            DVec3::ZERO,
+            DVec3::Y,
+            DVec3::Z,
+            DVec3::ONE,
+        ];
+        let theta = [1.0, 1.0, 1.0, 2.0, 2.0f64.next_up(), f64::NAN];
+        let psi = [0.5, 0.5, 0.5, -0.0, -0.0, f64::NAN];
+        // 0, 1, 2 share angles (0 and 2 from one place, 1 from another: all three
+        // count); 3 and 4 differ by one ulp of theta; 5 did not arrive.
+        assert_eq!(indistinguishable(&pos, &theta, &psi).seeds, 3);
+        let theta = [1.0, 1.0, 1.0, 2.0, 2.0, f64::NAN];
+        let psi = [0.5, 0.5, 0.5, -0.0, 0.0, f64::NAN];
+        assert_eq!(indistinguishable(&pos, &theta, &psi).seeds, 5);
     }
 
     #[test]

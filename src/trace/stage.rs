@@ -105,6 +105,8 @@ pub struct TraceReport {
     pub tiles: TileStats,
     /// Seeds landing within a tiny angle of seeds from elsewhere.
     pub collisions: Collisions,
+    /// Seeds whose stored arrival directions equal those of a seed from elsewhere.
+    pub indistinguishable: metrics::Indistinguishable,
     /// Flips and distortion, for surface seeds.
     pub surface: Option<SurfaceMetrics>,
     /// Streamlines per second (tracing only).
@@ -544,6 +546,7 @@ pub fn trace(
     }
     let sphere: Vec<Option<DVec3>> = (0..n).map(|i| table.sphere(i)).collect();
     let collisions = metrics::collisions(&tr.seeds, &sphere, 0.05, 5.0);
+    let indistinguishable = metrics::indistinguishable(&tr.seeds, &table.theta, &table.psi);
     let surface = tr
         .surface
         .as_ref()
@@ -565,6 +568,7 @@ pub fn trace(
         cache: [tr.tiling.cache_tiles, tr.tiling.cache_chunks],
         tiles: tr.stats,
         collisions,
+        indistinguishable,
         surface,
         lines_per_second: n as f64 / tr.seconds.max(1e-9),
         field: super::field::FIELD,

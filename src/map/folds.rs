@@ -1,0 +1,277 @@
+//! Folded voxels: where the volume map x -> ball point reverses orientation.
+//!
+//! The ball point of a voxel is p = phi d(theta, psi) = (1 - u) d, in Cartesian x, y, z.
+//! Its Jacobian by central differences (one-sided where a neighbour has no value) has a
+//! negative determinant where the map folds. The differences are taken as
+//! (d+ - d-) - (u+ d+ - u- d-), which keeps the small terms that 1 - u would round away
+//! down a thin arm. Block by block with a one-voxel halo, within the budget; the folded
+//! voxels are grouped into 26-connected clusters, the largest reported by size and
+//! centroid.
+
+use std::collections::HashMap;
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use super::upwind::is_target;
+use crate::grid::{BlockStore, GridError, GridSpec, MemBudget, Scalar};
+use crate::math::{volume, Idx3};
+use crate::parallel::map_bounded;
+use crate::progress::Progress;
+use crate::trace::integrate::StopBall;
+
+/// How many of the largest clusters the report lists.
+const CLUSTERS: usize = 5;
+
+/// A connected group of folded voxels.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FoldCluster {
+    /// Its voxels (26-connected).
+    pub voxels: u64,
+    /// Its centroid, world (x, y, z).
+    pub center: [f64; 3],
+}
+
+/// The folded voxels of a volume map.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Folded {
+    /// Mapped voxels outside the stop ball whose Jacobian was measured.
+    pub measured: u64,
+    /// Of those, with a negative determinant.
+    pub voxels: u64,
+    /// Of those, with a zero determinant (neighbours whose stored angles are equal).
+    pub degenerate: u64,
+    /// The largest clusters of folded voxels, largest first.
+    pub clusters: Vec<FoldCluster>,
+    /// Whether the clusters were found among the first folded voxels only (more than
+    /// the budget's share holds).
+    pub clusters_partial: bool,
+}
+
+/// Count the folded voxels of the map (`u`, `theta`, `psi` with `to_f64`) over the
+/// blocks `blocks`, outside `ball`.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn folded<T: Scalar>(
+    u: &dyn BlockStore<f64>,
+    labels: &dyn BlockStore<u8>,
+    theta: &dyn BlockStore<T>,
+    psi: &dyn BlockStore<T>,
+    to_f64: fn(T) -> f64,
+    ball: &StopBall,
+    blocks: &[Idx3],
+    mem: MemBudget,
+    progress: &dyn Progress,
+) -> Result<Folded, crate::Error> {
+    let spec = u.spec().clone();
+    let halo = spec.chunk.map(|c| c + 2);
+    let per_worker = volume(halo) * (8 + 2 * T::SIZE as u64 + 8 * 4) + volume(spec.chunk);
+    let workers = mem.workers(
+        "counting folded voxels (u, theta and psi of a block with a halo)",
+        0,
+        per_worker,
+        rayon::current_num_threads(),
+    )?;
+    progress.start("map (folded voxels)", blocks.len() as u64);
+    let per_block = map_bounded(blocks, workers, |&b| -> Result<_, GridError> {
+        let r = block(u, labels, theta, psi, to_f64, ball, &spec, b)?;
+        progress.advance(1);
+        Ok(r)
+    })?;
+    progress.finish();
+    let mut f = Folded::default();
+    // Positions kept for the clusters: 12 bytes each, plus the union-find's ~40.
+    let cap = (mem.work_bytes() / 4 / 64).max(1 << 16) as usize;
+    let mut kept: Vec<[u32; 3]> = Vec::new();
+    for (measured, degenerate, pos) in per_block {
+        f.measured += measured;
+        f.degenerate += degenerate;
+        f.voxels += pos.len() as u64;
+        for p in pos {
+            if kept.len() < cap {
+                kept.push(p);
+            } else {
+                f.clusters_partial = true;
+            }
+        }
+    }
+    f.clusters = clusters(&kept, &spec);
+    Ok(f)
+}
+
+/// One block: (voxels measured, degenerate, the folded voxels [z, y, x]).
+#[allow(clippy::too_many_arguments, clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
+fn block<T: Scalar>(
+    u: &dyn BlockStore<f64>,
+    labels: &dyn BlockStore<u8>,
+    theta: &dyn BlockStore<T>,
+    psi: &dyn BlockStore<T>,
+    to_f64: fn(T) -> f64,
+    ball: &StopBall,
+    spec: &GridSpec,
+    b: Idx3,
+) -> Result<(u64, u64, Vec<[u32; 3]>), GridError> {
+    let lab = labels.read_block(b)?;
+    let uh = u.read_block_halo(b, 1, f64::NAN)?;
+    let nan = T::from_f64(f64::NAN);
+    let th = theta.read_block_halo(b, 1, nan)?;
+    let ps = psi.read_block_halo(b, 1, nan)?;
+    let [hz, hy, hx] = uh.shape;
+    // Per halo voxel: u and the unit direction, or None.
+    let point: Vec<Option<(f64, DVec3)>> = (0..uh.data.len())
+        .map(|i| {
+            let (t, p, uu) = (to_f64(th.data[i]), to_f64(ps.data[i]), uh.data[i]);
+            (t.is_finite() && p.is_finite() && uu.is_finite())
+                .then(|| (uu, crate::trace::unit(t, p)))
+        })
+        .collect();
+    let start = spec.block_start(b);
+    let shape = spec.block_shape(b);
+    let strides = [hy * hx, hx, 1];
+    let (mut measured, mut degenerate, mut folded) = (0u64, 0u64, Vec::new());
+    let r2 = ball.radius * ball.radius;
+    let mut li = 0;
+    for z in 0..shape[0] as usize {
+        for y in 0..shape[1] as usize {
+            for x in 0..shape[2] as usize {
+                let l = lab[li];
+                li += 1;
+                if !is_target(l) {
+                    continue;
+                }
+                let g = [
+                    start[0] + z as u64,
+                    start[1] + y as u64,
+                    start[2] + x as u64,
+                ];
+                let c = DVec3::new(g[2] as f64, g[1] as f64, g[0] as f64);
+                if (c - ball.center).length_squared() <= r2 {
+                    continue;
+                }
+                let i = ((z + 1) * hy + (y + 1)) * hx + (x + 1);
+                let Some(p0) = point[i] else { continue };
+                // Columns d p / d x, d y, d z (world order); the halo's axes are z, y, x.
+                let mut cols = [DVec3::ZERO; 3];
+                let mut ok = true;
+                for (k, col) in cols.iter_mut().enumerate() {
+                    let s = strides[2 - k];
+                    let (lo, hi) = (point[i - s], point[i + s]);
+                    let diff =
+                        |a: (f64, DVec3), b: (f64, DVec3)| (b.1 - a.1) - (b.0 * b.1 - a.0 * a.1);
+                    *col = match (lo, hi) {
+                        (Some(a), Some(b)) => diff(a, b),
+                        (None, Some(b)) => diff(p0, b),
+                        (Some(a), None) => diff(a, p0),
+                        (None, None) => {
+                            ok = false;
+                            break;
+                        }
+                    };
+                }
+                if !ok {
+                    continue;
+                }
+                measured += 1;
+                let det = cols[0].dot(cols[1].cross(cols[2]));
+                if det < 0.0 {
+                    folded.push(g.map(|c| c as u32));
+                } else if det == 0.0 || !det.is_finite() {
+                    degenerate += 1;
+                }
+            }
+        }
+    }
+    debug_assert_eq!(hz, shape[0] as usize + 2);
+    Ok((measured, degenerate, folded))
+}
+
+/// The root of `i` in the union-find forest `parent` (halving the path).
+fn root(parent: &mut [usize], mut i: usize) -> usize {
+    while parent[i] != i {
+        parent[i] = parent[parent[i]];
+        i = parent[i];
+    }
+    i
+}
+
+/// The largest 26-connected clusters of `voxels` ([z, y, x], in block order), largest
+/// first (ties: the cluster whose first voxel comes first).
+fn clusters(voxels: &[[u32; 3]], spec: &GridSpec) -> Vec<FoldCluster> {
+    let index: HashMap<[u32; 3], usize, foldhash::fast::FixedState> =
+        voxels.iter().enumerate().map(|(i, &v)| (v, i)).collect();
+    let mut parent: Vec<usize> = (0..voxels.len()).collect();
+    for (i, v) in voxels.iter().enumerate() {
+        for dz in -1i64..=1 {
+            for dy in -1i64..=1 {
+                for dx in -1i64..=1 {
+                    let n = [
+                        i64::from(v[0]) + dz,
+                        i64::from(v[1]) + dy,
+                        i64::from(v[2]) + dx,
+                    ];
+                    if n.iter().any(|&c| c < 0) {
+                        continue;
+                    }
+                    if let Some(&j) = index.get(&n.map(|c| c as u32)) {
+                        let (a, b) = (root(&mut parent, i), root(&mut parent, j));
+                        if a != b {
+                            parent[a.max(b)] = a.min(b);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    // Per root: count, sum of positions, first voxel.
+    let mut acc: HashMap<usize, (u64, DVec3, usize), foldhash::fast::FixedState> =
+        HashMap::default();
+    for (i, v) in voxels.iter().enumerate() {
+        let r = root(&mut parent, i);
+        let p = spec.voxel_center(v.map(u64::from));
+        let e = acc.entry(r).or_insert((0, DVec3::ZERO, i));
+        e.0 += 1;
+        e.1 += p;
+        e.2 = e.2.min(i);
+    }
+    let mut all: Vec<(u64, DVec3, usize)> = acc.into_values().collect();
+    all.sort_by(|a, b| b.0.cmp(&a.0).then(a.2.cmp(&b.2)));
+    all.into_iter()
+        .take(CLUSTERS)
+        .map(|(n, s, _)| FoldCluster {
+            voxels: n,
+            center: (s / n as f64).to_array(),
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    #[allow(clippy::float_cmp)] // means of small integers: exact
+    fn clusters_are_26_connected_groups_largest_first() {
+        let spec = GridSpec {
+            shape: [20, 20, 20],
+            origin: [0.0; 3],
+            spacing: 1.0,
+            chunk: [8, 8, 8],
+            unit: None,
+        };
+        // A diagonal line of 3 (corner-connected), a pair, and a single voxel.
+        let v = vec![
+            [1, 1, 1],
+            [10, 10, 10],
+            [2, 2, 2],
+            [3, 3, 3],
+            [15, 1, 1],
+            [15, 1, 2],
+        ];
+        let c = clusters(&v, &spec);
+        assert_eq!(
+            c.iter().map(|c| c.voxels).collect::<Vec<_>>(),
+            vec![3, 2, 1]
+        );
+        assert_eq!(c[0].center, [2.0, 2.0, 2.0]);
+        assert_eq!(c[1].center, [1.5, 1.0, 15.0]);
+    }
+}
