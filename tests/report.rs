@@ -139,7 +139,7 @@ fn the_starfish_run_writes_a_self_contained_report_beside_its_atlas() {
         (
             "genus",
             format!(
-                "<td>genus</td><td>{}</td>",
+                "<td>genus of the solid</td><td>{}</td>",
                 n("/stages/voxelize/result/genus")
             ),
         ),
@@ -230,6 +230,58 @@ fn a_run_only_voxelized_gets_a_page_that_names_the_missing_stages() {
         );
     }
     assert!(page.contains(&harmap::input::sha256_file(&mesh).unwrap()));
+    // One genus-0 piece: the page says no repair was needed.
+    assert!(page.contains("Repair: none"), "no repair line");
+    // A mesh: no molecule options.
+    assert!(
+        !page.contains("<td>probe</td>"),
+        "molecule options shown for a mesh"
+    );
+}
+
+/// A repaired solid gets a visible repair section: what changed, from the record.
+#[test]
+fn a_repaired_solid_shows_its_repair() {
+    let dir = tempfile::tempdir().unwrap();
+    let mesh = dir.path().join("two.obj");
+    let big = crate::common::sphere(harmap::math::Vec3::ZERO, 1.0, 24, 48);
+    let speck = crate::common::sphere(harmap::math::Vec3::new(1.6, 0.0, 0.0), 0.2, 8, 16);
+    crate::common::write_obj(&mesh, &crate::common::merge(&big, &speck));
+    let run = dir.path().join("two.harmap");
+    let r = run.to_str().unwrap();
+    let o = harmap(&[
+        "voxelize",
+        mesh.to_str().unwrap(),
+        "-o",
+        r,
+        "--resolution",
+        "40",
+        "--topology",
+        "repair",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = harmap(&["report", r]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let page = std::fs::read_to_string(dir.path().join("two.report.html")).unwrap();
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("zarr.json")).unwrap()).unwrap();
+    let rep = meta
+        .pointer("/attributes/harmap/stages/voxelize/result/repair")
+        .expect("the speck is repaired");
+    let specks = rep["specks_dropped"].as_u64().unwrap();
+    assert!(specks >= 1, "{rep}");
+    assert!(
+        page.contains("<h3 id=\"repair\">Repair</h3>"),
+        "no repair section"
+    );
+    assert!(
+        page.contains(&format!("<td>specks dropped</td><td>{specks}</td>")),
+        "specks dropped not shown"
+    );
+    assert!(
+        page.contains("<td>removed</td>"),
+        "the changed regions are not listed"
+    );
 }
 
 #[test]

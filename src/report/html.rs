@@ -20,6 +20,7 @@ use crate::run::{write_atomic, RunDir};
 mod base64;
 mod plot;
 pub mod png;
+mod repair;
 mod sections;
 mod slices;
 

@@ -159,6 +159,8 @@ pub fn mesh_solid(
         &columns,
         workers,
         |&(bz, by)| -> Result<u64, crate::Error> {
+            // A stop request (Ctrl-C) ends the pass at the next block.
+            crate::progress::check_interrupt(progress)?;
             let col = (bz * nb[1] + by) as usize;
             let list = &col_tris[counts[col]..counts[col + 1]];
             let r = column(&spec, &tris, &ranges, list, [bz, by], rule, out)?;
