@@ -59,6 +59,7 @@ pub fn deepest_voxel(
         .open(scratch)
         .map_err(io)?;
     let slice = |z: usize| -> Result<Vec<u8>, GridError> {
+        crate::progress::check_interrupt(progress)?;
         Ok(store.read_region([z as i64, 0, 0], [1, ny, nx], 0)?.data)
     };
     progress.start("voxelize: center (distance transform)", 2 * nz as u64);

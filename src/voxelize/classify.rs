@@ -64,6 +64,7 @@ pub fn classify(
     let blocks = spec.block_indices();
     progress.start("voxelize: labels", blocks.len() as u64);
     let counts = map_bounded(&blocks, workers, |&b| -> Result<[u64; 8], crate::Error> {
+        crate::progress::check_interrupt(progress)?;
         let r = solid.read_block_halo(b, HALO, 0)?;
         let [hz, hy, hx] = r.shape;
         let s = spec.block_shape(b).map(|c| c as usize);

@@ -128,6 +128,7 @@ pub fn close(
         blocks.len() as u64,
     );
     let added = map_bounded(&blocks, workers, |&b| -> Result<u64, crate::Error> {
+        crate::progress::check_interrupt(progress)?;
         let bx = solid.read_block_halo(b, h, 0)?;
         let s = bx.shape;
         let solid_box: Vec<bool> = bx.data.iter().map(|&v| v == 1).collect();

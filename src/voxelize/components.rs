@@ -172,6 +172,7 @@ pub fn find(
     // pieces (a noisy segmentation) would otherwise outgrow the memory budget.
     let held = AtomicU64::new(0);
     let infos = map_bounded(&blocks, workers, |&b| -> Result<BlockInfo, crate::Error> {
+        crate::progress::check_interrupt(progress)?;
         let data = store.read_block(b)?;
         let s = spec.block_shape(b).map(|c| c as usize);
         let (labels, n) = label_block(&data, s, pred);

@@ -19,6 +19,7 @@ pub fn volume_solid(
     let blocks = spec.block_indices();
     progress.start("voxelize: reading the label volume", blocks.len() as u64);
     map_bounded(&blocks, workers, |&b| -> Result<(), crate::Error> {
+        crate::progress::check_interrupt(progress)?;
         let start = spec.block_start(b);
         let shape = spec.block_shape(b);
         // The block's box in volume coordinates, clipped to the volume.

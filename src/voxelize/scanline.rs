@@ -159,6 +159,7 @@ pub fn mesh_solid(
         &columns,
         workers,
         |&(bz, by)| -> Result<u64, crate::Error> {
+            crate::progress::check_interrupt(progress)?;
             let col = (bz * nb[1] + by) as usize;
             let list = &col_tris[counts[col]..counts[col + 1]];
             let r = column(&spec, &tris, &ranges, list, [bz, by], rule, out)?;
