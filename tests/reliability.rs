@@ -374,3 +374,204 @@ fn threads_are_capped_with_a_warning() {
     assert!(t.elapsed() < Duration::from_secs(45), "{:?}", t.elapsed());
     assert!(out.is_dir());
 }
+
+/// Every file or folder under `dir` whose name holds a temporary mark: what a failed or
+/// killed write left.
+fn leftovers(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_owned()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            let name = p.file_name().unwrap().to_string_lossy().into_owned();
+            if name.contains(".partial") || name.contains(".tmp-") || name.contains(".old-") {
+                out.push(p.clone());
+            }
+            if p.is_dir() {
+                stack.push(p);
+            }
+        }
+    }
+    out
+}
+
+/// `harmap ARGS` with every file it writes limited to `kib` KiB (RLIMIT_FSIZE, as
+/// `ulimit -f` sets it, with SIGXFSZ ignored so that writes fail with EFBIG): a disk
+/// that fills up, without mounting anything.
+fn with_file_limit(kib: u64, args: &[&str]) -> Output {
+    let words: Vec<String> = args.iter().map(|a| format!("'{a}'")).collect();
+    Command::new("sh")
+        .arg("-c")
+        .arg(format!(
+            "trap '' XFSZ; ulimit -f {}; exec '{}' --progress never {}",
+            2 * kib,
+            env!("CARGO_BIN_EXE_harmap"),
+            words.join(" ")
+        ))
+        .output()
+        .expect("sh runs")
+}
+
+#[test]
+fn failed_writes_on_a_full_disk_leave_nothing_and_leftovers_are_swept() {
+    let d = tempfile::tempdir().unwrap();
+    let run = finished_run(d.path());
+    let r = s(&run);
+    let before = snapshot(&run);
+    let nii = d.path().join("phi.nii");
+    let zarr = d.path().join("phi.zarr");
+    let vti = d.path().join("phi.vti");
+    // The map goes last: it forgets its record as it starts (a map stopped half-way
+    // must not look done), so the run is no longer unchanged after it.
+    let cases: [Vec<&str>; 6] = [
+        vec!["export", r, "--format", "nifti", "-o", s(&nii)],
+        vec!["export", r, "--format", "ome-zarr", "-o", s(&zarr)],
+        vec!["export", r, "--format", "vti", "-o", s(&vti)],
+        vec!["solve", r, "--rtol", "1e-7"],
+        vec!["trace", r, "--seeds", "surface"],
+        vec!["map", r, "--exact"],
+    ];
+    for args in &cases {
+        // 8 KiB per file: every stage and export here writes a larger file.
+        let o = with_file_limit(8, args);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{args:?}:\n{err}");
+        assert!(err.contains("File too large"), "{args:?}:\n{err}");
+        assert!(!err.contains("panicked"), "{err}");
+        let left = leftovers(d.path());
+        assert!(left.is_empty(), "{args:?} left {left:?}");
+        assert!(
+            !run.join("map.scratch").exists(),
+            "{args:?} left map.scratch"
+        );
+        assert!(!nii.exists() && !zarr.exists() && !vti.exists(), "{args:?}");
+        if args[0] != "map" {
+            assert!(snapshot(&run) == before, "{args:?} changed the run");
+        }
+    }
+    // What killed writes left is swept by the next write of the same target.
+    let dead = [
+        run.join("phi.partial"),
+        run.join("u.partial"),
+        run.join("seeds.partial"),
+        run.join("theta.partial"),
+        run.join("phi.old-999999999"),
+    ];
+    for p in &dead {
+        std::fs::create_dir_all(p.join("0")).unwrap();
+        std::fs::write(p.join("0").join("junk"), vec![1u8; 4096]).unwrap();
+    }
+    let meta = run.join(".zarr.json.tmp-999999999");
+    std::fs::write(&meta, b"{").unwrap();
+    expect(&["solve", r, "--rtol", "1e-7"], 0, &[]);
+    expect(&["trace", r, "--seeds", "surface"], 0, &[]);
+    expect(&["map", r], 0, &[]);
+    let left = leftovers(d.path());
+    assert!(left.is_empty(), "left {left:?}");
+}
+
+/// A `harmap run` of `args` (after `--verbose --progress never`), signalled with
+/// `signal` `after` the phase whose name starts with `phase` begins. Returns the exit
+/// code, the seconds from the signal to the exit, and stderr.
+fn signalled_run(
+    args: &[String],
+    phase: &str,
+    after: Duration,
+    signal: &str,
+) -> (i32, f64, String) {
+    use std::io::{BufRead, BufReader, Read};
+    let mut child = Command::new(&args[0])
+        .args(&args[1..])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut text = String::new();
+    let mut line = String::new();
+    let mut sent = None;
+    while err.read_line(&mut line).unwrap() > 0 {
+        text.push_str(&line);
+        if line.starts_with(phase) {
+            std::thread::sleep(after);
+            let k = Command::new("kill")
+                .args([signal, &child.id().to_string()])
+                .status()
+                .unwrap();
+            assert!(k.success());
+            sent = Some(Instant::now());
+            break;
+        }
+        line.clear();
+    }
+    err.read_to_string(&mut text).unwrap();
+    let status = child.wait().unwrap();
+    let sent = sent.unwrap_or_else(|| panic!("no phase {phase:?} in:\n{text}"));
+    (
+        status.code().unwrap_or(-1),
+        sent.elapsed().as_secs_f64(),
+        text,
+    )
+}
+
+#[test]
+fn run_stops_within_a_second_in_every_stage_and_the_printed_command_continues() {
+    let Some(pdb) = crate::common::shared_data("molecules/1crn.pdb") else {
+        return;
+    };
+    let d = tempfile::tempdir().unwrap();
+    let run = d.path().join("crn.harmap");
+    // 100 x 86 x 100 voxels: each stage lasts a second or more here (the solve by SOR).
+    let first: Vec<String> = [
+        env!("CARGO_BIN_EXE_harmap"),
+        "--verbose",
+        "--progress",
+        "never",
+        "run",
+        s(&pdb),
+        "-o",
+        s(&run),
+        "--resolution",
+        "88",
+        "--method",
+        "sor",
+    ]
+    .map(str::to_owned)
+    .to_vec();
+    // Each stop continues with the command the previous stop printed.
+    let moments = [
+        ("voxelize: molecular solid", 200, "-INT", 130, "voxelize"),
+        ("solve: sor", 300, "-TERM", 143, "solve"),
+        ("trace ...", 800, "-INT", 130, "trace"),
+        ("map (upwind)", 100, "-TERM", 143, "map"),
+    ];
+    let mut cmd = first.clone();
+    for (phase, ms, signal, code, stage) in moments {
+        let (got, secs, err) = signalled_run(&cmd, phase, Duration::from_millis(ms), signal);
+        assert_eq!(got, code, "{signal} in {phase}:\n{err}");
+        assert!(
+            secs < 1.0,
+            "{signal} in {phase}: exit after {secs:.2} s:\n{err}"
+        );
+        assert!(!err.contains("panicked"), "{err}");
+        assert!(
+            err.contains(&format!("stopped during the {stage} stage")),
+            "{phase}:\n{err}"
+        );
+        let printed = err
+            .split("Continue with `")
+            .nth(1)
+            .and_then(|t| t.split('`').next())
+            .unwrap_or_else(|| panic!("no command to continue with:\n{err}"));
+        // The printed command is the run's own, shell-quoted: run it by the shell.
+        cmd = vec!["sh".into(), "-c".into(), format!("exec {printed}")];
+    }
+    let o = Command::new(&cmd[0]).args(&cmd[1..]).output().unwrap();
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(0), "the last continue:\n{err}");
+    for name in ["labels", "phi", "seeds", "theta", "psi"] {
+        assert!(run.join(name).is_dir(), "{name} missing");
+    }
+    let left = leftovers(d.path());
+    assert!(left.is_empty(), "left {left:?}");
+}

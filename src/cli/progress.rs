@@ -15,6 +15,8 @@ pub struct Bars {
     draw: bool,
     verbosity: u8,
     interrupt: Option<Interrupt>,
+    /// The name of the phase last started (empty before the first).
+    phase: Mutex<String>,
 }
 
 impl Bars {
@@ -31,6 +33,7 @@ impl Bars {
             draw,
             verbosity: g.verbosity,
             interrupt: None,
+            phase: Mutex::new(String::new()),
         }
     }
 
@@ -41,12 +44,17 @@ impl Bars {
             ..Self::new(g)
         }
     }
+
+    /// The name of the phase last started (empty before the first).
+    pub fn phase(&self) -> String {
+        self.phase.lock().expect("lock").clone()
+    }
 }
 
 /// SIGINT and SIGTERM set the returned token (and record which came) instead of
 /// killing the process: the stages poll it and stop at the next iteration, block or
 /// tile. A second signal while the first is being handled ends the process at once
-/// with 128 + its number, for a stage that does not poll (the voxelization).
+/// with 128 + its number.
 pub fn catch_signals() -> anyhow::Result<Interrupt> {
     let token = Interrupt::new();
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
@@ -68,6 +76,7 @@ pub fn catch_signals() -> anyhow::Result<Interrupt> {
 
 impl harmap::progress::Progress for Bars {
     fn start(&self, name: &str, total: u64) {
+        name.clone_into(&mut self.phase.lock().expect("lock"));
         if !self.draw {
             if self.verbosity > 1 {
                 eprintln!("{name} ...");

@@ -2,11 +2,14 @@
 //! [`harmap::pipeline::run`]; this parses the flags and prints.
 
 use std::fmt::Write as _;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use harmap::input::InputOptions;
 use harmap::pipeline::{PipelineError, PipelineOptions, PipelineReport, Source, StageRun};
+use harmap::progress::Interrupt;
 use harmap::trace::Rk45;
 
 use super::exit::{exit_code_of, shell_words, Stopped};
@@ -103,18 +106,19 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         .map_or(Source::Starfish, |p| Source::File(p, &iopts));
     let interrupt = catch_signals()?;
     let bars = Bars::with_interrupt(g, interrupt.clone());
-    let report = match harmap::pipeline::run(&source, &opts, &bars) {
+    let done = AtomicBool::new(false);
+    let result = std::thread::scope(|s| {
+        s.spawn(|| watchdog(&interrupt, &done, &bars, &out));
+        let r = harmap::pipeline::run(&source, &opts, &bars);
+        done.store(true, Ordering::SeqCst);
+        r
+    });
+    let report = match result {
         Ok(r) => r,
         Err(PipelineError::Interrupted { run, stage, signal }) => {
-            // The same command continues (without --force, which would start over).
-            let args: Vec<String> = std::env::args().filter(|a| a != "--force").collect();
             return Err(Stopped {
                 code: exit_code_of(signal),
-                message: format!(
-                    "{}: stopped during the {stage} stage; the finished stages are kept. Continue with `{}`",
-                    run.display(),
-                    shell_words(&args)
-                ),
+                message: stopped_message(&run, stage),
             }
             .into());
         }
@@ -126,6 +130,50 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     };
     print(&report, g);
     Ok(())
+}
+
+/// How long a stage has, after SIGINT or SIGTERM, to stop at its next block, tile or
+/// iteration before [`watchdog`] ends the process: a second in all from the signal.
+const GRACE: Duration = Duration::from_millis(700);
+
+/// What an interrupted run prints: the stage it stopped in and the command that
+/// continues it (the same command, without --force, which would start over).
+fn stopped_message(run: &Path, stage: &str) -> String {
+    let args: Vec<String> = std::env::args().filter(|a| a != "--force").collect();
+    format!(
+        "{}: stopped during the {stage} stage; the finished stages are kept. Continue with `{}`",
+        run.display(),
+        shell_words(&args)
+    )
+}
+
+/// The stop within a second, whatever the stage is doing: once `interrupt` is set,
+/// the pipeline has [`GRACE`] to return (`done`); a stage still busy in a step that
+/// polls nothing (a long single pass) is then ended with the process, as a kill would
+/// end it. Every file of a run is written under a temporary name and renamed, so that
+/// leaves what a kill leaves: the finished stages, and leftovers the next run sweeps.
+fn watchdog(interrupt: &Interrupt, done: &AtomicBool, bars: &Bars, run: &Path) {
+    while !done.load(Ordering::SeqCst) {
+        if interrupt.is_set() {
+            let t = Instant::now();
+            while t.elapsed() < GRACE {
+                if done.load(Ordering::SeqCst) {
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            let phase = bars.phase();
+            // The stage is the phase's first word ("voxelize: labels", "map (upwind)").
+            let stage = phase
+                .split([':', ' ', '('])
+                .next()
+                .filter(|s| !s.is_empty())
+                .unwrap_or("voxelize");
+            eprintln!("error: {}", stopped_message(run, stage));
+            std::process::exit(i32::from(exit_code_of(interrupt.signal())));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
 }
 
 /// The lines of a finished run: each stage, then the summary.

@@ -148,14 +148,6 @@ fn file_name(dest: &Path) -> String {
         .unwrap_or_default()
 }
 
-/// Whether process `pid` is running (None where this cannot be told: no `/proc`).
-fn alive(pid: u32) -> Option<bool> {
-    let proc = Path::new("/proc");
-    proc.join("self")
-        .exists()
-        .then(|| proc.join(pid.to_string()).exists())
-}
-
 /// Remove the temporary files (or folders) beside `dest` that exports to `dest` left
 /// when killed: `.NAME.partial-PID` whose process is gone. Best effort: what cannot be
 /// removed stays, and the export goes on.
@@ -165,27 +157,7 @@ pub(crate) fn sweep_partials(dest: &Path) {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
     };
-    let Ok(entries) = fs::read_dir(dir) else {
-        return;
-    };
-    for e in entries.flatten() {
-        let name = e.file_name().to_string_lossy().into_owned();
-        let Some(pid) = name
-            .strip_prefix(&prefix)
-            .and_then(|p| p.parse::<u32>().ok())
-        else {
-            continue;
-        };
-        if pid == std::process::id() || alive(pid) != Some(false) {
-            continue;
-        }
-        let p = e.path();
-        let _ = if p.is_dir() {
-            fs::remove_dir_all(&p)
-        } else {
-            fs::remove_file(&p)
-        };
-    }
+    crate::run::atomic::sweep_dead(dir, &prefix);
 }
 
 #[cfg(test)]

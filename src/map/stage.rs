@@ -39,6 +39,7 @@ pub fn map_with(
 ) -> Result<MapReport, crate::Error> {
     let t0 = Instant::now();
     let _lock = run.lock()?;
+    let mut staged = run.staged_images(&["theta", "psi"]);
     let attrs = run.require_stage("solve")?;
     if !run.has_image("u") {
         return Err(MapError::NoU {
@@ -63,6 +64,7 @@ pub fn map_with(
             e => e,
         })?;
     let scratch = run.root().join("map.scratch");
+    staged.and_scratch(&scratch);
     fresh_dir(&scratch)?;
     let boundary = Boundary::for_run(&attrs, &spec, opts.mem);
     if let Some(problem) = &boundary.problem {

@@ -167,10 +167,25 @@ impl RunDir {
     ) -> Result<ZarrStore<T>, crate::Error> {
         let tmp = format!("{name}.partial");
         let dir = self.root.join(&tmp);
+        // What a commit killed between its two renames left: the older image.
+        super::atomic::sweep_dead(&self.root, &format!("{name}.old-"));
         if dir.exists() {
             fs::remove_dir_all(&dir).map_err(io(&dir))?;
         }
         self.write_image(&tmp, name, spec, fill, compression)
+    }
+
+    /// A guard that removes the staged images `names` (`RUN/NAME.partial/`) when it
+    /// drops: a stage that fails on the way (a full disk) or stops leaves none of them
+    /// behind. Images committed by then are no longer under their staging names, so
+    /// it leaves them alone. Take it while holding the run's lock.
+    pub fn staged_images(&self, names: &'static [&'static str]) -> StagedImages {
+        StagedImages {
+            dirs: names
+                .iter()
+                .map(|n| self.root.join(format!("{n}.partial")))
+                .collect(),
+        }
     }
 
     /// Move the image staged by [`RunDir::create_image_staged`] into place, replacing an
@@ -243,5 +258,29 @@ impl RunDir {
     pub fn open_image<T: Scalar>(&self, name: &str) -> Result<ZarrStore<T>, crate::Error> {
         let spec = self.grid()?;
         Ok(ZarrStore::open(&self.root, &format!("/{name}/0"), spec)?)
+    }
+}
+
+/// Staged images (and a stage's scratch folders) removed on drop (see
+/// [`RunDir::staged_images`]).
+#[must_use = "the staged images are removed when the guard drops"]
+pub struct StagedImages {
+    dirs: Vec<PathBuf>,
+}
+
+impl StagedImages {
+    /// Remove the folder `dir` too (a stage's scratch) when the guard drops.
+    pub fn and_scratch(&mut self, dir: &Path) {
+        self.dirs.push(dir.to_owned());
+    }
+}
+
+impl Drop for StagedImages {
+    fn drop(&mut self) {
+        for dir in &self.dirs {
+            if dir.exists() {
+                let _ = fs::remove_dir_all(dir);
+            }
+        }
     }
 }

@@ -11,7 +11,7 @@
 //! place when whole, so an interrupted run never leaves a directory that looks complete.
 //! Metadata updates go through a temporary file, fsync and rename.
 
-mod atomic;
+pub(crate) mod atomic;
 mod dir;
 mod ome;
 pub mod stages;
@@ -20,7 +20,7 @@ mod staging;
 use std::path::{Path, PathBuf};
 
 pub use atomic::write_atomic;
-pub use dir::RunDir;
+pub use dir::{RunDir, StagedImages};
 pub use ome::ome_multiscales;
 pub use stages::{
     options_in, peak_rss, report_in, stage_done, stage_record, Freshness, StageRecord, STAGES,

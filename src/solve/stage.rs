@@ -53,6 +53,7 @@ pub fn solve_with(
     let t0 = Instant::now();
     check_options(opts)?;
     let _lock = run.lock()?;
+    let _staged = run.staged_images(&["phi", "u"]);
     run.require_stage("voxelize")?;
     let spec = run.grid()?;
     let dir = run.checkpoint_dir();

@@ -516,6 +516,7 @@ pub fn trace(
 ) -> Result<TraceReport, crate::Error> {
     let t0 = Instant::now();
     let _lock = run.lock()?;
+    let _staged = run.staged_images(&["seeds"]);
     let spec: GridSpec = run.grid()?;
     let tr = trace_seeds(run, opts, false, progress)?;
     let n = tr.seeds.len();

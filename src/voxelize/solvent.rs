@@ -265,20 +265,20 @@ pub fn solvent_access(
     balls: &Balls,
     workers: usize,
     progress: &dyn Progress,
-) -> (Vec<Access>, Cavities) {
+) -> Result<(Vec<Access>, Cavities), crate::grid::GridError> {
     const CHUNK: usize = 64;
     let n = balls.centers.len();
     let chunks: Vec<usize> = (0..n.div_ceil(CHUNK)).collect();
     progress.start("voxelize: probe space", n as u64);
     let per_chunk = crate::parallel::map_bounded(&chunks, workers, |&ch| {
+        crate::progress::check_interrupt(progress)?;
         let mut others = Vec::new();
         let out: Vec<_> = (ch * CHUNK..(ch * CHUNK + CHUNK).min(n))
             .map(|i| atom_pass(balls, i, &mut others))
             .collect();
         progress.advance(out.len() as u64);
-        Ok::<_, std::convert::Infallible>(out)
-    })
-    .unwrap_or_else(|e| match e {});
+        Ok::<_, crate::grid::GridError>(out)
+    })?;
     progress.finish();
 
     // Global patch ids.
@@ -341,6 +341,7 @@ pub fn solvent_access(
     // Atoms with patches on both sides: their samples one by one (the same patches
     // again, computed the same way).
     let bits = crate::parallel::map_bounded(&mixed, workers, |&i| {
+        crate::progress::check_interrupt(progress)?;
         let mut others = Vec::new();
         balls.sas_neighbours(i, &mut others);
         let p = patches(balls, i, &others);
@@ -350,13 +351,12 @@ pub fn solvent_access(
                 bits[k as usize / 64] |= 1 << (k % 64);
             }
         }
-        Ok::<_, std::convert::Infallible>(bits)
-    })
-    .unwrap_or_else(|e| match e {});
+        Ok::<_, crate::grid::GridError>(bits)
+    })?;
     for (&i, b) in mixed.iter().zip(bits) {
         access[i] = Access::Some(b);
     }
-    (access, cavities)
+    Ok((access, cavities))
 }
 
 #[cfg(test)]
@@ -387,13 +387,13 @@ mod tests {
         // Radius 7: 80 atoms leave no gap a probe passes, and inside, F is a ball of
         // radius about 7 - 3.1.
         let closed = shell(80, 7.0, 0.0);
-        let (access, cav) = solvent_access(&closed, 2, &Silent);
+        let (access, cav) = solvent_access(&closed, 2, &Silent).unwrap();
         assert_eq!(cav.count, 1, "{cav:?}");
         assert_eq!(cav.atoms as usize, closed.centers.len());
         assert!(access.iter().all(|a| matches!(a, Access::Some(_))));
         // A mouth wider than the probe: one piece, in the solvent.
         let open = shell(80, 7.0, 6.0);
-        let (access, cav) = solvent_access(&open, 2, &Silent);
+        let (access, cav) = solvent_access(&open, 2, &Silent).unwrap();
         assert_eq!(cav, Cavities::default());
         assert!(access.iter().all(|a| *a == Access::All));
     }
@@ -406,7 +406,7 @@ mod tests {
             DVec3::new(2.0, 0.0, 0.0),
         ];
         let balls = Balls::new(centers, vec![1.5; 3], 1.4);
-        let (access, cav) = solvent_access(&balls, 1, &Silent);
+        let (access, cav) = solvent_access(&balls, 1, &Silent).unwrap();
         assert_eq!(cav, Cavities::default());
         assert_eq!(access, vec![Access::All; 3]);
     }

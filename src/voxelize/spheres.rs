@@ -64,7 +64,7 @@ pub fn molecule_solid(
     };
     let (balls, access, cavities) = if surface == MolSurface::Ses {
         let balls = Balls::new(centers, radii, probe);
-        let (access, cavities) = solvent_access(&balls, workers, progress);
+        let (access, cavities) = solvent_access(&balls, workers, progress)?;
         (balls, access, cavities)
     } else {
         let balls = Balls::without_samples(centers, radii, probe);
@@ -73,6 +73,7 @@ pub fn molecule_solid(
     let blocks = spec.block_indices();
     progress.start("voxelize: molecular solid", blocks.len() as u64);
     crate::parallel::map_bounded(&blocks, workers, |&b| {
+        crate::progress::check_interrupt(progress)?;
         let out = block_solid(&spec, b, &balls, &access, grow, surface);
         solid.write_block(b, &out)?;
         progress.advance(1);
