@@ -91,7 +91,7 @@ fn icosphere(r: f64, level: usize) -> TriMesh {
 /// the icosphere of radius 1 on an odd grid, so that its center is a voxel center, with
 /// the center ball of radius `R / 4.5` (0.1 N for R = 0.45 N) there. Returns the run,
 /// R and the sink radius in voxels.
-fn concentric(dir: &Path, n: u64, level: usize) -> (PathBuf, f64, f64) {
+fn concentric(dir: &Path, n: u64, level: usize, chunk: u64) -> (PathBuf, f64, f64) {
     let mesh = icosphere(1.0, level);
     // The icosphere reaches the poles: its extent is 2 along every axis. Across it
     // `odd - 1/2` voxels round up to an odd count, and the padding keeps it odd.
@@ -106,10 +106,10 @@ fn concentric(dir: &Path, n: u64, level: usize) -> (PathBuf, f64, f64) {
         spacing: Some(h),
         center: Some([0.0; 3]),
         center_radius: r0,
-        chunk: 32,
+        chunk,
         ..VoxelizeOptions::default()
     };
-    let out = dir.join(format!("spheres{n}.harmap"));
+    let out = dir.join(format!("spheres{n}-{chunk}.harmap"));
     voxelize_new_run(
         &Source::Mesh(&mesh, "icosphere"),
         &opts,
@@ -176,7 +176,7 @@ fn solve_run(run: &Path, method: Method) {
 fn mesh_crossings_are_the_sphere_within_the_facets_sag() {
     let dir = tempfile::tempdir().unwrap();
     let level = 4;
-    let (run, big_r, r0) = concentric(dir.path(), 24, level);
+    let (run, big_r, r0) = concentric(dir.path(), 24, level, 16);
     let (spec, labels) = read_labels(&run);
     let cuts = read_all::<u64>(&run, "cuts", 0);
     let [nz, ny, nx] = spec.shape.map(|c| c as usize);
@@ -249,9 +249,14 @@ fn mesh_crossings_are_the_sphere_within_the_facets_sag() {
     assert!(outer > 1000 && inner > 50, "{outer} {inner}");
 }
 
+/// Subdivisions of the icosphere for the accuracy tests: its facets lie within 0.001
+/// voxel of the sphere at N = 129 (the depth of a facet, about 0.24 R / 4^level,
+/// enters phi as the gradient there times it: 5e-6 here).
+const FINE: usize = 7;
+
 /// Solve the mesh spheres at N and return the RMS and largest error.
 fn spheres_error(dir: &Path, n: u64) -> (f64, f64, f64) {
-    let (run, big_r, r0) = concentric(dir, n, 5);
+    let (run, big_r, r0) = concentric(dir, n, FINE, 32);
     solve_run(&run, Method::Multigrid);
     let (rms, max, _) = errors(&run, big_r, r0);
     (big_r / 0.45, rms, max)
@@ -273,13 +278,121 @@ fn concentric_mesh_spheres_are_second_order() {
     assert!(a.1 < 0.01 && b.1 < 0.003, "{a:?} {b:?}");
 }
 
+/// The same run solved on the staircase (its `cuts` removed): phi = 1 on the boundary
+/// voxels, as label volumes are solved.
+fn staircase_error(dir: &Path, n: u64) -> (f64, f64, f64) {
+    let (run, big_r, r0) = concentric(dir, n, FINE, 32);
+    std::fs::remove_dir_all(run.join("cuts")).unwrap();
+    solve_run(&run, Method::Multigrid);
+    let (rms, max, _) = errors(&run, big_r, r0);
+    (big_r / 0.45, rms, max)
+}
+
 #[test]
 #[ignore = "N = 129: a minute of solve; run by hand for docs/correctness.md"]
 fn concentric_mesh_spheres_at_129() {
     let dir = tempfile::tempdir().unwrap();
+    for n in [33, 65, 129] {
+        eprintln!(
+            "staircase N, RMS, max: {:?}",
+            staircase_error(dir.path(), n)
+        );
+    }
     let a = spheres_error(dir.path(), 65);
     let b = spheres_error(dir.path(), 129);
     let per_doubling = (a.1 / b.1).powf(2f64.ln() / (b.0 / a.0).ln());
     eprintln!("N, RMS, max: {a:?} {b:?}; RMS falls {per_doubling:.2}x per doubling");
     assert!(per_doubling >= 3.5 && b.1 < 0.002, "{a:?} {b:?}");
+}
+
+fn phi_bits(run: &Path) -> Vec<u64> {
+    read_all::<f64>(run, "phi", f64::NAN)
+        .iter()
+        .map(|v| v.to_bits())
+        .collect()
+}
+
+#[test]
+fn mesh_runs_are_the_same_bytes_for_any_thread_count_and_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut outs = Vec::new();
+    for (threads, mem) in &[(1, "1GiB"), (2, "1GiB"), (2, "32MiB")] {
+        let (run, _, _) = concentric(dir.path(), 80, 4, 16);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(*threads)
+            .build()
+            .unwrap();
+        let opts = SolveOptions {
+            rtol: 1e-8,
+            mem: mem.parse().unwrap(),
+            ..SolveOptions::default()
+        };
+        let rep = pool
+            .install(|| {
+                solve(
+                    &RunDir::open(&run).unwrap(),
+                    &opts,
+                    &AtomicBool::new(false),
+                    &Silent,
+                )
+            })
+            .unwrap();
+        if *mem == "32MiB" {
+            assert!(!rep.in_memory[0], "the small budget should put phi on disk");
+        }
+        outs.push((rep.iterations, rep.residual_history, phi_bits(&run)));
+    }
+    assert_eq!(outs[0], outs[1], "1 vs 2 threads");
+    assert_eq!(outs[1], outs[2], "in memory vs memory-mapped scratch");
+}
+
+#[test]
+fn mesh_runs_solve_alike_with_every_method_and_resume_to_the_same_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let (run, big_r, r0) = concentric(dir.path(), 20, 4, 8);
+    let mut answers = Vec::new();
+    for m in [Method::Multigrid, Method::Sor, Method::Jacobi] {
+        solve_run(&run, m);
+        answers.push((m, read_all::<f64>(&run, "phi", f64::NAN)));
+    }
+    let (_, labels) = read_labels(&run);
+    for (m, phi) in &answers[1..] {
+        let d = phi
+            .iter()
+            .zip(&answers[0].1)
+            .zip(&labels)
+            .filter(|(_, &l)| l == INTERIOR || l == BOUNDARY)
+            .map(|((a, b), _)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(d < 1e-7, "{m:?} differs from multigrid by {d}");
+    }
+    // The boundary voxels are unknowns now: phi < 1 there, and in (0, 1) throughout
+    // (the maximum principle).
+    let phi = &answers[0].1;
+    for (i, &l) in labels.iter().enumerate() {
+        if l == BOUNDARY || l == INTERIOR {
+            assert!(phi[i] > 0.0 && phi[i] < 1.0, "phi {} at {i} ({l})", phi[i]);
+        }
+    }
+    let (rms, _, _) = errors(&run, big_r, r0);
+    assert!(rms < 0.01, "{rms}");
+
+    // Interrupted at once (the state is checkpointed), then resumed: the same bytes as
+    // the solve straight through.
+    let opts = SolveOptions {
+        method: Method::Jacobi,
+        rtol: 1e-10,
+        max_iter: 200_000,
+        ..SolveOptions::default()
+    };
+    let r = RunDir::open(&run).unwrap();
+    solve(&r, &opts, &AtomicBool::new(false), &Silent).unwrap();
+    let straight = phi_bits(&run);
+    assert!(solve(&r, &opts, &AtomicBool::new(true), &Silent).is_err());
+    let resumed = SolveOptions {
+        resume: true,
+        ..opts
+    };
+    solve(&r, &resumed, &AtomicBool::new(false), &Silent).unwrap();
+    assert!(phi_bits(&run) == straight, "resumed phi differs");
 }
