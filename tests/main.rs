@@ -12,6 +12,7 @@ mod pipeline;
 mod reliability;
 mod report;
 mod solve;
+mod subvoxel;
 mod topology;
 mod trace;
 mod voxelize;

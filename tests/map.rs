@@ -260,7 +260,9 @@ fn copy_dir(from: &Path, to: &Path) {
 
 /// inverse(forward(x)) for sampled voxels of `run` (forward: the run's u, theta, psi at
 /// the voxel): the distances (voxels) back to each voxel, those of the interior voxels
-/// (u > 0) and the failed rows. With one thread and `small_budget` (a few tiles) the
+/// (label 2; the boundary voxels of a mesh run have u > 0 too, since the solve's
+/// boundary lies beyond them, and their streamlines are partly traced uphill to it) and
+/// the failed rows. With one thread and `small_budget` (a few tiles) the
 /// output must be the same bytes.
 fn round_trip(run: &Path, samples: usize, small_budget: u64) -> RoundTrip {
     let (spec, labels) = field::<u8>(run, "labels", 0);
@@ -337,7 +339,7 @@ fn round_trip(run: &Path, samples: usize, small_budget: u64) -> RoundTrip {
             (i / (nx * ny)) as f64,
         );
         d.push((v - want).length());
-        if u[i] > 0.0 {
+        if labels[i] == 2 {
             interior.push((v - want).length());
         }
     }
@@ -352,7 +354,8 @@ fn round_trip(run: &Path, samples: usize, small_budget: u64) -> RoundTrip {
 struct RoundTrip {
     /// Distances (voxels) back to the voxels.
     all: Vec<f64>,
-    /// The same for the interior voxels (u > 0). A boundary voxel's row has u = 0, which
+    /// The same for the interior voxels (label 2). A boundary voxel's row has u = 0 (or,
+    /// in a mesh run, a small u), which
     /// the inverse places where the interpolated u reaches 0 along its streamline: up to a
     /// few tenths of a voxel from the voxel's center.
     interior: Vec<f64>,

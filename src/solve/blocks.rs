@@ -161,6 +161,7 @@ mod tests {
             spec,
             mask,
             f: None,
+            cuts: None,
             flat: Cache::default(),
             depth: 0,
             halo: 6,

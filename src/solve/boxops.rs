@@ -12,6 +12,7 @@
 //! Colors are by global index parity (`z + y + x` even is red), so a sweep gives the same
 //! values whatever the blocking.
 
+use super::cuts::{cut_defect_at, is_unknown, CUT};
 use super::stencil::{defect_at, defect_of, energy_term, full_weighting};
 use crate::voxelize::labels::INTERIOR;
 
@@ -24,6 +25,9 @@ pub struct BoxView<'a> {
     pub mask: &'a [u8],
     /// Right-hand side; `None` means 0.
     pub f: Option<&'a [f64]>,
+    /// The packed arms of the finest level of a run with cuts (where the mask is
+    /// [`CUT`]); `None` on coarse levels and on the staircase.
+    pub cuts: Option<&'a [u64]>,
     /// Box extent `[z, y, x]`.
     pub shape: [usize; 3],
     /// Global index of the first voxel.
@@ -42,6 +46,27 @@ impl BoxView<'_> {
         defect_at(self.u, self.f, i, sy, sz)
     }
 
+    /// The defect and the diagonal at the cut unknown at offset `i`.
+    #[inline]
+    fn cut(&self, i: usize) -> (f64, f64) {
+        let (sy, sz) = self.strides();
+        let cuts = self.cuts.expect("a CUT voxel on a level with cuts");
+        cut_defect_at(self.u, cuts, self.mask, i, sy, sz)
+    }
+
+    /// The defect at an unknown and the change a Jacobi step makes there (defect over
+    /// the diagonal).
+    #[inline]
+    fn defect_and_step(&self, i: usize) -> (f64, f64) {
+        if self.mask[i] == CUT {
+            let (d, g) = self.cut(i);
+            (d, d / g)
+        } else {
+            let d = self.defect(i);
+            (d, d / 6.0)
+        }
+    }
+
     /// One red-black half-sweep of `color` (0 red, 1 black) over the local sub-box
     /// `[lo, hi)` (which must leave at least one voxel of the box on every side):
     /// `u_i += omega (f_i + sum of neighbours - 6 u_i) / 6`. Returns the largest change.
@@ -58,6 +83,12 @@ impl BoxView<'_> {
                 for x in (x0..hi[2]).step_by(2) {
                     let i = row + x;
                     if self.mask[i] != INTERIOR {
+                        if self.mask[i] == CUT {
+                            let (d, g) = self.cut(i);
+                            let d = omega * d / g;
+                            self.u[i] += d;
+                            max = max.max(d.abs());
+                        }
                         continue;
                     }
                     let u = &mut *self.u;
@@ -103,6 +134,10 @@ impl BoxView<'_> {
                         let r = self.defect(row + x) / 6.0;
                         plane += r * r;
                         n += 1;
+                    } else if self.mask[row + x] == CUT {
+                        let r = self.defect_and_step(row + x).1;
+                        plane += r * r;
+                        n += 1;
                     }
                 }
             }
@@ -123,6 +158,30 @@ impl BoxView<'_> {
                 for x in lo[2]..hi[2] {
                     out.push(if self.mask[row + x] == INTERIOR {
                         self.defect(row + x)
+                    } else if self.mask[row + x] == CUT {
+                        self.cut(row + x).0
+                    } else {
+                        0.0
+                    });
+                }
+            }
+        }
+        out
+    }
+
+    /// The change a Jacobi step makes at every voxel of the sub-box `[lo, hi)`: the
+    /// defect over the diagonal (6, or a cut unknown's), 0 where the voxel is not an
+    /// unknown; C order over the sub-box.
+    #[must_use]
+    pub fn steps(&self, lo: [usize; 3], hi: [usize; 3]) -> Vec<f64> {
+        let [_, ny, nx] = self.shape;
+        let mut out = Vec::with_capacity((0..3).map(|a| hi[a] - lo[a]).product());
+        for z in lo[0]..hi[0] {
+            for y in lo[1]..hi[1] {
+                let row = (z * ny + y) * nx;
+                for x in lo[2]..hi[2] {
+                    out.push(if is_unknown(self.mask[row + x]) {
+                        self.defect_and_step(row + x).1
                     } else {
                         0.0
                     });
@@ -135,7 +194,8 @@ impl BoxView<'_> {
 
 /// `c . A c` over the unknowns of the local sub-box `[lo, hi)` of a box of `shape`
 /// (which must leave a voxel on every side of it), for a correction `c` on that box
-/// taken as 0 off the unknowns; `A c = 6 c - sum of neighbours`. Summed plane by plane
+/// taken as 0 off the unknowns; `A c = 6 c - sum of neighbours` (at cut unknowns too:
+/// the staircase's energy, which only sets the correction's length). Summed plane by plane
 /// (z), each plane in y, x order.
 #[must_use]
 pub fn correction_energy(
@@ -147,7 +207,7 @@ pub fn correction_energy(
 ) -> f64 {
     let [_, ny, nx] = shape;
     let (sy, sz) = (nx, nx * ny);
-    let at = |j: usize| if mask[j] == INTERIOR { c[j] } else { 0.0 };
+    let at = |j: usize| if is_unknown(mask[j]) { c[j] } else { 0.0 };
     let mut den = 0.0;
     for z in lo[0]..hi[0] {
         // Summed plane by plane (the whole-array pass sums the same way).
@@ -155,7 +215,7 @@ pub fn correction_energy(
         for y in lo[1]..hi[1] {
             let row = (z * ny + y) * nx;
             for i in row + lo[2]..row + hi[2] {
-                if mask[i] != INTERIOR {
+                if !is_unknown(mask[i]) {
                     continue;
                 }
                 plane += energy_term(
@@ -290,7 +350,7 @@ pub fn prolong_add(
 ) {
     let c = prolong(e, e_origin, e_shape, fine.origin, fine.shape);
     for ((u, &m), c) in fine.u.iter_mut().zip(fine.mask).zip(&c) {
-        if m == INTERIOR {
+        if is_unknown(m) {
             *u += scale * c;
         }
     }
@@ -327,6 +387,7 @@ mod tests {
             u: &mut u,
             mask: &fmask,
             f: None,
+            cuts: None,
             shape: fs,
             origin: [2, 3, 1],
         };
@@ -374,6 +435,7 @@ mod tests {
             u: &mut whole,
             mask: &mask,
             f: Some(&f),
+            cuts: None,
             shape: [n; 3],
             origin: [0; 3],
         };
@@ -406,6 +468,7 @@ mod tests {
             u: &mut bu,
             mask: &bm,
             f: Some(&bf),
+            cuts: None,
             shape: sh,
             origin: org,
         };

@@ -3,6 +3,7 @@
 //! node under it is one and it is not on the level's edge).
 
 use super::blocks::BlockLoop;
+use super::cuts::is_unknown;
 use super::level::Level;
 use crate::grid::{BlockStore, GridError, GridSpec};
 use crate::math::Idx3;
@@ -63,7 +64,7 @@ pub fn coarsen_mask(
                         let c = spec.block_start(cb)[a] + g[a];
                         c == 0 || c + 1 >= spec.shape[a]
                     });
-                    m.push(if v == INTERIOR && !edge { INTERIOR } else { 0 });
+                    m.push(if is_unknown(v) && !edge { INTERIOR } else { 0 });
                 }
             }
         }

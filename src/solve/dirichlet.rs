@@ -27,7 +27,7 @@ pub enum Node {
 #[must_use]
 pub fn node(label: u8, eps: f64) -> Node {
     match label {
-        INTERIOR => Node::Unknown,
+        INTERIOR | super::cuts::CUT => Node::Unknown,
         BOUNDARY => Node::Fixed(1.0),
         CENTER => Node::Fixed(0.0),
         EXTERIOR => Node::Outside,

@@ -4,9 +4,9 @@
 
 use super::blocks::BlockLoop;
 use super::boxops::BoxView;
+use super::cuts::is_unknown;
 use super::level::{Level, PassStats};
 use crate::grid::GridError;
-use crate::voxelize::labels::INTERIOR;
 
 /// One Jacobi iteration from `u[src]` into `u[dst]`, measuring the residual of the
 /// source and the largest change (which is the largest |residual|).
@@ -20,17 +20,22 @@ pub fn jacobi_pass(
     let st = blocks.stats(spec, |b| {
         let mut u = l.u[src].read_block_halo(b, 1, 0.0)?;
         let mask = l.mask.read_block_halo(b, 1, 0)?;
+        let cuts = match &l.cuts {
+            Some(c) => Some(c.read_block_halo(b, 1, 0)?),
+            None => None,
+        };
         let shape = u.shape;
         let view = BoxView {
             u: &mut u.data,
             mask: &mask.data,
             f: None,
+            cuts: cuts.as_ref().map(|c| &c.data[..]),
             shape,
             origin: u.origin,
         };
         let lo = [1; 3];
         let hi = shape.map(|c| c - 1);
-        let d = view.defects(lo, hi);
+        let d = view.steps(lo, hi);
         let inner = mask.crop(lo, spec.block_shape(b).map(|c| c as usize));
         let old = u.crop(lo, spec.block_shape(b).map(|c| c as usize));
         let mut st = PassStats::default();
@@ -39,8 +44,8 @@ pub fn jacobi_pass(
             .zip(&d)
             .zip(&inner)
             .map(|((&o, &d), &m)| {
-                if m == INTERIOR {
-                    let r = d / 6.0;
+                if is_unknown(m) {
+                    let r = d;
                     st.res_sq += r * r;
                     st.count += 1;
                     st.max_change = st.max_change.max(r.abs());

@@ -23,6 +23,9 @@ pub struct Level {
     pub u: [Box<dyn BlockStore<f64>>; 2],
     /// `None` on the finest level (0).
     pub f: Option<Box<dyn BlockStore<f64>>>,
+    /// The packed arms of the sub-voxel boundary ([`super::cuts`]): on the finest level
+    /// of a run with cuts only.
+    pub cuts: Option<Box<dyn BlockStore<u64>>>,
     /// For a level held as arrays: the runs of unknowns and the passes' buffers.
     pub flat: Cache,
     /// 0 for the finest level, one more per coarsening (names the level's fields in
@@ -46,6 +49,11 @@ impl Level {
     /// on the arrays ([`super::flat`]), with the same results.
     #[must_use]
     pub fn as_flat(&self) -> Option<Flat<'_>> {
+        // The whole-array passes know only the 7-point stencil: a level with cuts goes
+        // block by block.
+        if self.cuts.is_some() {
+            return None;
+        }
         Flat::of(
             &self.spec,
             self.mask.contiguous()?,
@@ -169,6 +177,7 @@ pub(super) struct Boxed {
     pub(super) u: Block<f64>,
     pub(super) mask: Block<u8>,
     pub(super) f: Option<Block<f64>>,
+    pub(super) cuts: Option<Block<u64>>,
 }
 
 impl Boxed {
@@ -177,6 +186,7 @@ impl Boxed {
             u: &mut self.u.data,
             mask: &self.mask.data,
             f: self.f.as_ref().map(|f| &f.data[..]),
+            cuts: self.cuts.as_ref().map(|c| &c.data[..]),
             shape: self.u.shape,
             origin: self.u.origin,
         }
@@ -197,6 +207,10 @@ impl Level {
             mask: self.mask.read_region(origin, shape, 0)?,
             f: match &self.f {
                 Some(f) => Some(f.read_region(origin, shape, 0.0)?),
+                None => None,
+            },
+            cuts: match &self.cuts {
+                Some(c) => Some(c.read_region(origin, shape, 0)?),
                 None => None,
             },
         })

@@ -4,6 +4,7 @@
 //! Files, one algorithm each:
 //! - [`dirichlet`]: what each label means for phi, and the starting state;
 //! - [`stencil`]: the 7-point stencil at a voxel, and the SOR factor;
+//! - [`cuts`]: the Shortley-Weller stencil next to a sub-voxel boundary (mesh runs);
 //! - [`boxops`]: the stencil's kernels on a box read with a halo;
 //! - [`jacobi`]: the paper's iteration, block by block;
 //! - [`level`]: one level of the hierarchy and what its passes read;
@@ -53,6 +54,7 @@ pub mod blocks;
 pub mod boxops;
 pub mod checkpoint;
 pub mod coarsen;
+pub mod cuts;
 pub mod dirichlet;
 pub mod driver;
 mod error;

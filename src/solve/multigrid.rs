@@ -134,6 +134,7 @@ impl<'d> Hierarchy<'d> {
                 mask,
                 u,
                 f,
+                cuts: None,
                 flat: super::flat::Cache::default(),
                 depth: lvl,
                 halo,

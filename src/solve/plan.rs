@@ -5,16 +5,20 @@ use super::level::{coarse_level_bytes, worker_bytes};
 use super::multigrid::{pass_halo, CycleOptions};
 use crate::grid::{GridError, GridSpec, MemBudget};
 
-/// Which levels (0 = finest; arrays: mask, generations) live in memory, and how many
-/// blocks are in flight, under `mem`.
+/// Which levels (0 = finest; arrays: mask, generations, and with `cuts` the packed
+/// arms) live in memory, and how many blocks are in flight, under `mem`.
 pub fn plan_memory(
     fine: &GridSpec,
     coarse: &[GridSpec],
     cycle: &CycleOptions,
     mem: MemBudget,
+    cuts: bool,
 ) -> Result<(Vec<bool>, usize), GridError> {
     let halo = pass_halo(cycle);
-    let per_worker = worker_bytes(fine.chunk, halo);
+    // With cuts a box also holds its arms, 8 bytes a voxel (as many as u).
+    let arms = |b: u64| if cuts { b } else { 0 };
+    let boxed = crate::math::volume(fine.chunk.map(|c| c + 2 * halo + 3));
+    let per_worker = worker_bytes(fine.chunk, halo) + arms(8 * boxed);
     let threads = rayon::current_num_threads();
     // At least one worker must fit; keep room for as many as there are threads.
     let workers = mem.workers(
@@ -35,7 +39,9 @@ pub fn plan_memory(
         }
     }
     // The finest level: labels and two generations of f64.
-    let fine_bytes = fine.num_voxels() * 17 + super::flat::pass_bytes(fine, threads);
+    let fine_bytes = fine.num_voxels() * 17
+        + arms(8 * fine.num_voxels())
+        + super::flat::pass_bytes(fine, threads);
     if in_memory.iter().skip(1).all(|&m| m) && fine_bytes <= avail {
         in_memory[0] = true;
     }

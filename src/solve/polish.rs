@@ -30,10 +30,10 @@
 //! plus a haloed block per worker.
 
 use super::blocks::BlockLoop;
+use super::cuts::{is_unknown, Coef, CUT};
 use crate::grid::{BlockStore, GridError, GridSpec};
 use crate::math::Idx3;
 use crate::progress::Progress;
-use crate::voxelize::labels::INTERIOR;
 
 /// What polishing did.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -120,16 +120,22 @@ struct Visit {
     negative: u64,
 }
 
-/// Relax the small values of `u` (unknowns where `mask` is INTERIOR) in place, block by
+/// The finest level's mask and packed arms, in a run with cuts ([`super::cuts`]): the
+/// polish relaxes cut unknowns with their Shortley-Weller equation.
+pub type Arms<'a> = Option<&'a dyn BlockStore<u64>>;
+
+/// Relax the small values of `u` (unknowns of `mask`) in place, block by
 /// block. `bytes` is the memory the polish may hold at once (it decides how many blocks
 /// are relaxed at a time, not the result). `stop` is polled between passes.
 ///
 /// This process relaxes the blocks `blocks` owns, exchanges `u` (halo 1) after each
 /// colour phase, and learns which of its blocks to visit next from the faces that
 /// moved in its neighbours' visits, gathered over all processes.
+#[allow(clippy::too_many_arguments)] // the level's fields, the budget, the loop and the two callbacks
 pub fn polish(
     u: &dyn BlockStore<f64>,
     mask: &dyn BlockStore<u8>,
+    arms: Arms<'_>,
     opts: &PolishOptions,
     bytes: u64,
     blocks: &BlockLoop<'_>,
@@ -200,6 +206,7 @@ pub fn polish(
             regions: &mut regions,
             sweeps: &mut sweeps,
             active: &active,
+            arms: arms.map(|a| (mask, a)),
         };
         let pass = state.visit(u, opts, &owned, workers, first, blocks)?;
         report.last_change = blocks
@@ -240,6 +247,8 @@ struct State<'a> {
     sweeps: &'a mut [u64],
     /// Per block: to visit in this pass.
     active: &'a [bool],
+    /// The mask and the arms, in a run with cuts.
+    arms: Option<(&'a dyn BlockStore<u8>, &'a dyn BlockStore<u64>)>,
 }
 
 impl State<'_> {
@@ -272,11 +281,11 @@ impl State<'_> {
                         && phase_of(b) == phase
                 })
                 .collect();
-            let (regions, sweeps) = (&*self.regions, &*self.sweeps);
+            let (regions, sweeps, arms) = (&*self.regions, &*self.sweeps, self.arms);
             let visits = crate::parallel::map_bounded(&todo, workers, |&b| {
                 let region = regions[lin(b)].as_ref().expect("active blocks hold region");
                 let limit = SWEEPS_PER_VISIT.min(opts.max_sweeps - sweeps[lin(b)]);
-                relax_block(u, b, region, opts, limit, first)
+                relax_block(u, arms, b, region, opts, limit, first)
             })?;
             for (&b, v) in todo.iter().zip(visits) {
                 let k = lin(b);
@@ -362,7 +371,7 @@ fn find_regions(
         let mut bits = vec![0u64; uv.len().div_ceil(64)];
         let (mut count, mut negative, mut region_negative) = (0u64, 0u64, 0u64);
         for (o, (&x, &m)) in uv.iter().zip(&mv).enumerate() {
-            if m == INTERIOR {
+            if is_unknown(m) {
                 negative += u64::from(x < 0.0);
                 if x < opts.threshold {
                     bits[o / 64] |= 1 << (o % 64);
@@ -395,8 +404,10 @@ fn find_regions(
 /// no value by more than `rel_change` of itself (or `limit` sweeps), and write the
 /// block back. On the `first` visit, the region's values start from 0.
 #[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
+#[allow(clippy::too_many_lines)] // the lists by colour, the sweeps and the faces that moved
 fn relax_block(
     u: &dyn BlockStore<f64>,
+    arms: Option<(&dyn BlockStore<u8>, &dyn BlockStore<u64>)>,
     b: Idx3,
     region: &Region,
     opts: &PolishOptions,
@@ -411,6 +422,12 @@ fn relax_block(
     // Haloed offsets of the region voxels by colour (the grid parity, as the solver's
     // sweeps), and the faces each lies on.
     let mut lists: [Vec<u32>; 2] = [Vec::new(), Vec::new()];
+    // Cut unknowns of the region, by colour, with their equations.
+    let mut cut_lists: [Vec<(u32, Coef)>; 2] = [Vec::new(), Vec::new()];
+    let arms = match arms {
+        Some((mask, cuts)) => Some((mask.read_block_halo(b, 1, 0)?, cuts.read_block(b)?)),
+        None => None,
+    };
     let mut on_face: Vec<(u32, u8)> = Vec::new();
     let mut o = 0;
     for z in 0..sh[0] {
@@ -419,7 +436,13 @@ fn relax_block(
                 if region.contains(o) {
                     let h = ((z + 1) * hxy + (y + 1) * hx + x + 1) as u32;
                     let colour = (st[0] as usize + z + st[1] as usize + y + st[2] as usize + x) % 2;
-                    lists[colour].push(h);
+                    match &arms {
+                        Some((m, p)) if m.data[h as usize] == CUT => {
+                            cut_lists[colour]
+                                .push((h, Coef::at_haloed(&p[o], &m.data, h as usize, hx, hxy)));
+                        }
+                        _ => lists[colour].push(h),
+                    }
                     let faces = u8::from(z == 0)
                         | u8::from(z + 1 == sh[0]) << 1
                         | u8::from(y == 0) << 2
@@ -435,7 +458,11 @@ fn relax_block(
         }
     }
     if first {
-        for &h in lists.iter().flatten() {
+        for &h in lists
+            .iter()
+            .flatten()
+            .chain(cut_lists.iter().flatten().map(|(h, _)| h))
+        {
             blk.data[h as usize] = 0.0;
         }
     }
@@ -451,7 +478,18 @@ fn relax_block(
     };
     while visit.sweeps < limit {
         let mut change = 0.0f64;
-        for list in &lists {
+        for (list, cut_list) in lists.iter().zip(&cut_lists) {
+            for &(h, k) in cut_list {
+                let h = h as usize;
+                let nb = [h - 1, h + 1, h - hx, h + hx, h - hxy, h + hxy].map(|j| d[j]);
+                let old = d[h];
+                let v = (1.0 - w) * old + w * ((k.defect(nb, 0.0)) / k.diag);
+                d[h] = v;
+                let scale = v.abs().max(old.abs());
+                if scale > FLOOR {
+                    change = change.max((v - old).abs() / scale);
+                }
+            }
             for &h in list {
                 let h = h as usize;
                 let s = d[h - 1] + d[h + 1] + d[h - hx] + d[h + hx] + d[h - hxy] + d[h + hxy];
@@ -483,6 +521,7 @@ fn relax_block(
     visit.negative = lists
         .iter()
         .flatten()
+        .chain(cut_lists.iter().flatten().map(|(h, _)| h))
         .filter(|&&h| d[h as usize] < 0.0)
         .count() as u64;
     u.write_block(b, &blk.crop([1, 1, 1], sh))?;
@@ -493,6 +532,7 @@ fn relax_block(
 mod tests {
     use super::*;
     use crate::grid::{fill_with, to_usize, GridSpec, MemStore};
+    use crate::voxelize::labels::INTERIOR;
     use crate::voxelize::labels::{BOUNDARY, CENTER};
 
     /// The tube of the test below in a grid of `chunk`-long blocks, started from the
@@ -542,6 +582,7 @@ mod tests {
         polish(
             u,
             mask,
+            None,
             &opts,
             bytes,
             &BlockLoop::whole(workers),

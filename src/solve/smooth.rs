@@ -6,11 +6,11 @@
 
 use super::blocks::BlockLoop;
 use super::boxops::prolong_add;
+use super::cuts::is_unknown;
 use super::level::{box_of, coarse_cover, Change, Level, Measure, PassStats};
 use super::transfer::restrict_block;
 use crate::grid::GridError;
 use crate::math::Idx3;
-use crate::voxelize::labels::INTERIOR;
 
 /// One smoothing pass: from generation `src` into `dst` of a level.
 #[derive(Clone, Copy)]
@@ -124,7 +124,7 @@ impl Level {
         let mut measure_row = |r: usize, old: &[f64], new: &[f64]| {
             let m = &bx.mask.data[interior(r)];
             for ((o, n), &l) in old.iter().zip(new).zip(m) {
-                if l == INTERIOR {
+                if is_unknown(l) {
                     max = max.max((n - o).abs());
                 }
             }

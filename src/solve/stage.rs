@@ -14,6 +14,7 @@ use std::time::Instant;
 use super::blocks::BlockLoop;
 use super::checkpoint::{identity, CheckpointDir, Checkpoints};
 use super::coarsen::coarse_specs;
+use super::cuts::fine_mask;
 use super::dirichlet::initialize;
 use super::driver::{Decision, History, Iteration, Method, StopReason};
 use super::error::SolveError;
@@ -26,6 +27,7 @@ use super::report::SolveReport;
 use crate::grid::{human, BlockStore, Compression, Decomposition, GridError, GridSpec, Whole};
 use crate::progress::Progress;
 use crate::run::RunDir;
+use crate::voxelize::cuts::NAME as CUTS;
 
 /// Solve for phi on the voxelized run `run` and store it in `RUN/phi/0`.
 ///
@@ -179,13 +181,19 @@ fn build<'d>(
     progress: &dyn Progress,
 ) -> Result<Setup<'d>, crate::Error> {
     let labels = run.open_image::<u8>("labels")?;
+    // Mesh runs carry the arms of the sub-voxel boundary; others solve on the staircase.
+    let cuts = if run.root().join(CUTS).join("0").join("zarr.json").exists() {
+        Some(run.open_image::<u64>(CUTS)?)
+    } else {
+        None
+    };
     let maker = scratch_dir(dir)?;
     let coarse = if opts.method == Method::Multigrid {
         coarse_specs(spec, opts.cycle.coarsest)
     } else {
         Vec::new()
     };
-    let (in_memory, workers) = plan_memory(spec, &coarse, &opts.cycle, opts.mem)?;
+    let (in_memory, workers) = plan_memory(spec, &coarse, &opts.cycle, opts.mem, cuts.is_some())?;
     progress.info(&format!(
         "solve: {} levels, in memory {:?}, {workers} blocks in flight, budget {}",
         coarse.len() + 1,
@@ -195,11 +203,25 @@ fn build<'d>(
     let blocks = BlockLoop { workers, decomp };
     let halo = pass_halo(&opts.cycle);
 
-    // The finest level: a scratch copy of the labels (cheap halo reads) and two
-    // generations of phi.
+    // The finest level: a scratch copy of the labels (cheap halo reads), with the
+    // unknowns of the sub-voxel boundary marked where there are cuts, their arms, and
+    // two generations of phi.
     let mem0 = in_memory[0];
     let mask = maker.make::<u8>("labels", spec, mem0, 0)?;
-    blocks.each(spec, |b| mask.write_block(b, &labels.read_block(b)?))?;
+    let arms = if let Some(c) = &cuts {
+        let arms = maker.make::<u64>("cuts", spec, mem0, 0)?;
+        blocks.each(spec, |b| {
+            let (l, p) = (labels.read_block(b)?, c.read_block(b)?);
+            arms.write_block(b, &p)?;
+            let m: Vec<u8> = l.iter().zip(&p).map(|(&l, &p)| fine_mask(l, p)).collect();
+            mask.write_block(b, &m)
+        })?;
+        blocks.exchange("cuts@0", halo)?;
+        Some(arms)
+    } else {
+        blocks.each(spec, |b| mask.write_block(b, &labels.read_block(b)?))?;
+        None
+    };
     let fine = Level {
         spec: spec.clone(),
         mask,
@@ -208,6 +230,7 @@ fn build<'d>(
             maker.make::<f64>("phi_b", spec, mem0, 0.0)?,
         ],
         f: None,
+        cuts: arms,
         flat: super::flat::Cache::default(),
         depth: 0,
         halo,
@@ -349,6 +372,7 @@ fn polish_tiny(
     let polish = super::polish::polish(
         &*fine.u[hist.cur],
         &*fine.mask,
+        fine.cuts.as_deref(),
         &opts.polish,
         opts.mem.work_bytes() / 2,
         &h.blocks,

@@ -19,6 +19,7 @@ mod center_ball;
 mod classify;
 pub mod closing;
 mod components;
+pub mod cuts;
 mod error;
 mod euler;
 mod from_volume;

@@ -5,8 +5,8 @@ use std::time::Instant;
 use super::center_ball::check_center_ball;
 use super::prepare::{self, Prepared};
 use super::{
-    center, classify, closing, components, from_volume, scanline, scratch_grid, spheres, topology,
-    CenterBall, InsideRule, VoxelizeError, VoxelizeOptions, VoxelizeReport,
+    center, classify, closing, components, cuts, from_volume, scanline, scratch_grid, spheres,
+    topology, CenterBall, InsideRule, VoxelizeError, VoxelizeOptions, VoxelizeReport,
 };
 use crate::grid::Compression;
 use crate::input::Shape;
@@ -237,6 +237,23 @@ pub fn voxelize(
     let ball = CenterBall::at_voxel(center_voxel, opts.center_radius);
     let counts = classify::classify(solid, &labels, ball, w_label, progress)?;
     lap("labels", &mut t);
+    // 6. Where the mesh crosses the stencil's arms, for the solve's sub-voxel boundary.
+    if let Shape::Mesh(mesh) = shape {
+        let w_cuts = opts.mem.workers(
+            &what("the boundary crossings of one block"),
+            held,
+            cuts::worker_bytes(c),
+            threads,
+        )?;
+        let store = run.create_image::<u64>(cuts::NAME, &spec, 0, Compression::Zstd(3))?;
+        let (_, missed) = cuts::mesh_cuts(mesh, &labels, ball, &store, w_cuts, progress)?;
+        if missed > 0 {
+            warnings.push(format!(
+                "{missed} stencil arms from the solid to the exterior met no triangle (voxels the closing or the repair added); the solve holds phi = 1 at those neighbours' centers"
+            ));
+        }
+        lap("crossings", &mut t);
+    }
     let _ = std::fs::remove_dir_all(&scratch_dir);
 
     Ok(VoxelizeReport {

@@ -209,7 +209,21 @@ def check_solve_and_trace(run: Path, h: dict) -> str:
         require(phi.dtype == np.float64 and u.dtype == np.float64, f"phi/u dtypes {phi.dtype}, {u.dtype}, expected float64")
         require(tuple(root["phi/0"].metadata.dimension_names) == ("z", "y", "x"), "phi/0 dimension names are not z, y, x")
         require(np.array_equal(np.isnan(phi), lab == 0), "phi is NaN exactly where the label is exterior (0): not so")
-        require(bool(np.all(phi[lab == 1] == 1.0)), "phi is not 1 on every boundary voxel")
+        # A mesh run carries the cut arms of the sub-voxel boundary (docs/format.md):
+        # its boundary voxels are unknowns, with phi in (0, 1], like the interior.
+        cut = (run / "cuts" / "0").exists()
+        if cut:
+            cuts = root["cuts/0"][:]
+            require(cuts.dtype == np.uint64 and cuts.shape == lab.shape, f"cuts/0 is {cuts.dtype} {cuts.shape}")
+            require(tuple(root["cuts/0"].metadata.dimension_names) == ("z", "y", "x"), "cuts/0 dimension names are not z, y, x")
+            require(bool(np.all(cuts[(lab != 1) & (lab != 2)] == 0)), "cut arms on a voxel that is not an unknown")
+            require(bool(np.all(cuts[lab == 1] != 0)), "a boundary voxel without a cut arm")
+            arms = [(cuts >> np.uint64(10 * k)) & np.uint64(1023) for k in range(6)]
+            require(max(int(a.max()) for a in arms) <= 1023 and int(cuts.max() >> np.uint64(60)) == 0, "cuts use more than 60 bits")
+            require(bool(np.all((phi[lab == 1] > 0.0) & (phi[lab == 1] <= 1.0))), "boundary phi outside (0, 1] in a run with cuts")
+            out.append(f"cuts {list(cuts.shape)} uint64, arms only at unknowns")
+        else:
+            require(bool(np.all(phi[lab == 1] == 1.0)), "phi is not 1 on every boundary voxel")
         require(bool(np.all(phi[lab == 3] == 0.0)), "phi is not 0 on every center voxel")
         fin = ~np.isnan(phi)
         require(bool(np.allclose(phi[fin], 1.0 - u[fin], rtol=0, atol=1e-15)), "phi != 1 - u")

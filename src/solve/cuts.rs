@@ -1,0 +1,192 @@
+//! The sub-voxel boundary: the Shortley-Weller stencil at the unknowns next to the
+//! boundary, from the arm fractions of the run's `cuts` array
+//! ([`crate::voxelize::cuts`]).
+//!
+//! Where a run has `cuts` (mesh inputs), the finest level's mask is derived from the
+//! labels and the arms: every solid voxel outside the center ball is an unknown (the
+//! boundary voxels too: their centers lie inside the surface, so phi < 1 there), marked
+//! [`CUT`] when an arm of it is cut, else `INTERIOR`. Along each axis the equation at a
+//! cut unknown is the 1-D second difference with unequal arms (Shortley and Weller
+//! 1938; Gibou, Fedkiw, Cheng and Kang 2002, section 3):
+//!
+//! `2 / (h_l + h_r) * ((u_r - u) / h_r - (u - u_l) / h_l)`, in voxels,
+//!
+//! with the Dirichlet value placed at the crossing: u = 0 (phi = 1) on the surface,
+//! u = 1 (phi = 0) on the center ball's sphere. An arm that is not cut has length 1 and
+//! reads the neighbour. Summed over the axes this is `b + sum_k c_k u_k - diag u`
+//! ([`Coef`]); without cuts it is the 7-point defect `sum u_k - 6 u`. Every coefficient
+//! is positive and `diag >= sum_k c_k`, so the matrix is still an M-matrix and the
+//! discrete maximum principle holds (u between 0 and 1, phi monotone along the
+//! streamlines' way down). The voxelizer clamps arms at 1/1023 voxel, which bounds
+//! the diagonal (at most about 2000 times the usual 6).
+//!
+//! Only the finest level uses the cuts; the coarse levels keep the staircase operator
+//! on the coarsened mask, an approximation of the fine operator that the V-cycle's
+//! smoothing corrects (docs/solve.md measures the convergence factor). Label volumes and
+//! molecules have no `cuts`, and their solve is the staircase, byte for byte as before.
+
+// The stencil's terms are named as in the formula (u, b, c, k, t, w).
+#![allow(clippy::many_single_char_names)]
+
+use crate::voxelize::cuts::arm;
+use crate::voxelize::labels::{CENTER, INTERIOR};
+
+/// Mask value of the finest level for an unknown with a cut arm (never a label).
+pub const CUT: u8 = 8;
+
+/// Whether mask value `m` is an unknown of the solve.
+#[inline]
+#[must_use]
+pub fn is_unknown(m: u8) -> bool {
+    m == INTERIOR || m == CUT
+}
+
+/// The mask value of a voxel of label `label` whose packed arms are `p`, in a run with
+/// cuts: solid voxels outside the center ball are unknowns.
+#[inline]
+#[must_use]
+pub fn fine_mask(label: u8, p: u64) -> u8 {
+    use crate::voxelize::labels::BOUNDARY;
+    match label {
+        BOUNDARY | INTERIOR if p != 0 => CUT,
+        BOUNDARY | INTERIOR => INTERIOR,
+        l => l,
+    }
+}
+
+/// The equation at a cut unknown: `diag u = b + sum_k c_k u_k`, neighbours in the order
+/// x-, x+, y-, y+, z-, z+ (`c_k = 0` on a cut arm).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Coef {
+    /// Weights of the neighbours' values.
+    pub c: [f64; 6],
+    /// The boundary values' part.
+    pub b: f64,
+    /// The diagonal.
+    pub diag: f64,
+}
+
+impl Coef {
+    /// The coefficients of packed arms `p`, with the neighbours' mask values `nb` (a cut
+    /// arm to the center ball ends at u = 1, any other at u = 0).
+    #[must_use]
+    pub fn of(p: u64, nb: [u8; 6]) -> Self {
+        let mut c = [0.0; 6];
+        let (mut b, mut diag) = (0.0, 0.0);
+        for a in 0..3 {
+            let (kl, kr) = (2 * a, 2 * a + 1);
+            let t = [kl, kr].map(|k| {
+                let t = arm(p, k);
+                if t > 0.0 {
+                    t
+                } else {
+                    1.0
+                }
+            });
+            let w = 2.0 / (t[0] + t[1]);
+            for (j, k) in [kl, kr].into_iter().enumerate() {
+                let g = w / t[j];
+                diag += g;
+                if arm(p, k) > 0.0 {
+                    if nb[k] == CENTER {
+                        b += g;
+                    }
+                } else {
+                    c[k] = g;
+                }
+            }
+        }
+        Self { c, b, diag }
+    }
+
+    /// The coefficients at offset `i` of C-order arrays with strides `sy`, `sz`.
+    #[inline]
+    #[must_use]
+    pub fn at(cuts: &[u64], mask: &[u8], i: usize, sy: usize, sz: usize) -> Self {
+        let nb = [i - 1, i + 1, i - sy, i + sy, i - sz, i + sz].map(|j| mask[j]);
+        Self::of(cuts[i], nb)
+    }
+
+    /// The coefficients of the packed arms `p` of the voxel at offset `h` of a haloed
+    /// mask with strides `sy`, `sz`.
+    #[must_use]
+    pub fn at_haloed(p: &u64, mask: &[u8], h: usize, sy: usize, sz: usize) -> Self {
+        let nb = [h - 1, h + 1, h - sy, h + sy, h - sz, h + sz].map(|j| mask[j]);
+        Self::of(*p, nb)
+    }
+
+    /// The defect `b + sum_k c_k u_k - diag u` with the neighbours' values `nb`.
+    #[inline]
+    #[must_use]
+    pub fn defect(&self, nb: [f64; 6], u: f64) -> f64 {
+        let mut s = self.b;
+        for (c, v) in self.c.iter().zip(nb) {
+            s += c * v;
+        }
+        s - self.diag * u
+    }
+}
+
+/// The defect and the diagonal at the cut unknown at offset `i` of C-order arrays `u`,
+/// `cuts`, `mask` with strides `sy`, `sz`.
+#[inline]
+#[must_use]
+pub fn cut_defect_at(
+    u: &[f64],
+    cuts: &[u64],
+    mask: &[u8],
+    i: usize,
+    sy: usize,
+    sz: usize,
+) -> (f64, f64) {
+    let k = Coef::at(cuts, mask, i, sy, sz);
+    let nb = [i - 1, i + 1, i - sy, i + sy, i - sz, i + sz].map(|j| u[j]);
+    (k.defect(nb, u[i]), k.diag)
+}
+
+#[cfg(test)]
+#[allow(clippy::float_cmp)] // quantized values and exact coefficients, compared exactly on purpose
+mod tests {
+    use super::*;
+    use crate::voxelize::cuts::encode;
+    use crate::voxelize::labels::LAYER1;
+
+    #[test]
+    fn uncut_arms_give_the_seven_point_stencil() {
+        let k = Coef::of(0, [INTERIOR; 6]);
+        assert_eq!(k.c, [1.0; 6]);
+        assert_eq!((k.b, k.diag), (0.0, 6.0));
+    }
+
+    #[test]
+    fn unequal_arms_are_exact_for_quadratics_and_keep_an_m_matrix() {
+        // u = (x - 0.3)^2 / 2 along x, with the boundary at x = 0.4 (arm x+ of 0.4):
+        // the 1-D second difference with unequal arms is exact for quadratics (u'' = 1).
+        let p = encode([0.0, 0.4, 0.0, 0.0, 0.0, 0.0]);
+        let k = Coef::of(
+            p,
+            [INTERIOR, LAYER1, INTERIOR, INTERIOR, INTERIOR, INTERIOR],
+        );
+        let q = |x: f64| (x - 0.3) * (x - 0.3) / 2.0;
+        // The arm as stored (0.4 rounded to 1/1023).
+        let t = arm(p, 1);
+        assert!((t - 0.4).abs() < 0.5 / 1023.0);
+        // The surface's value enters through b, which is for u = 0 there: add it.
+        let w = 2.0 / (1.0 + t);
+        let d = k.defect([q(-1.0), 0.0, 0.0, 0.0, 0.0, 0.0], q(0.0)) + w / t * q(t);
+        // The y and z arms see u = 0 around a value q(0): they add -4 q(0).
+        assert!((d + 4.0 * q(0.0) - 1.0).abs() < 1e-12, "{d}");
+        let sum: f64 = k.c.iter().sum::<f64>() + w / t;
+        assert!((k.diag - sum).abs() < 1e-12);
+        assert_eq!(k.c[1], 0.0);
+        // A cut arm to the center ball carries u = 1.
+        let kc = Coef::of(
+            p,
+            [INTERIOR, CENTER, INTERIOR, INTERIOR, INTERIOR, INTERIOR],
+        );
+        assert!((kc.b - w / t).abs() < 1e-12);
+        assert_eq!(fine_mask(crate::voxelize::labels::BOUNDARY, p), CUT);
+        assert_eq!(fine_mask(INTERIOR, 0), INTERIOR);
+        assert_eq!(fine_mask(CENTER, p), CENTER);
+    }
+}
