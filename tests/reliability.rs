@@ -575,3 +575,26 @@ fn run_stops_within_a_second_in_every_stage_and_the_printed_command_continues() 
     let left = leftovers(d.path());
     assert!(left.is_empty(), "left {left:?}");
 }
+
+#[test]
+fn large_probes_stay_within_the_memory_budget() {
+    let Some(pdb) = crate::common::shared_data("molecules/1crn.pdb") else {
+        return;
+    };
+    let d = tempfile::tempdir().unwrap();
+    let run = d.path().join("probe.harmap");
+    // A probe of 40 A on a 3 A grid: the probe centers on the SAS spheres are sampled
+    // at a fifth of the voxel, not at 0.1 A (which took 458 MiB here).
+    let o = Command::new("/usr/bin/time")
+        .args(["-f", "%M"])
+        .arg(env!("CARGO_BIN_EXE_harmap"))
+        .args(["-q", "voxelize", s(&pdb), "-o", s(&run)])
+        .args(["--spacing", "3", "--probe", "40", "--mem", "256MiB"])
+        .output()
+        .expect("/usr/bin/time runs");
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    let kib: u64 = err.lines().last().unwrap().trim().parse().unwrap();
+    // --mem plus the fixed allowance of docs/guide.md.
+    assert!(kib <= (256 + 64) * 1024, "peak {kib} KiB:\n{err}");
+}
