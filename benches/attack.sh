@@ -9,9 +9,12 @@
 # it must finish), endless and gzip-bomb inputs under --mem (exit 2, peak resident
 # memory within --mem plus the fixed allowance of docs/guide.md), far atoms and huge
 # grids (exit 2 at once, readable numbers), a flipped byte and a deleted chunk (exit 2,
-# the array and chunk named), --threads 10000 (capped, finishes), and a full disk on a
-# small tmpfs where the machine lets us mount one (the stage fails, nothing is left
-# half-written under a final name). Needs ../shared/data for the spot mesh.
+# the array and chunk named), --threads 10000 (capped, finishes), SIGINT and SIGTERM at
+# random moments of `harmap run` (exit 130 or 143 within a second, the same command
+# finishes), and a full disk on a small tmpfs where the machine lets us mount one (root):
+# a whole run, then solve, trace, map and an export each on a filled disk (the stage
+# fails, nothing is left, the run still opens, and a run on the freed disk finishes).
+# Needs ../shared/data (the spot mesh, 1crn). KILLS (default 8) sets the repetitions.
 set -uo pipefail
 here=$(cd "$(dirname "$0")/.." && pwd)
 bin=$(realpath "${1:-$here/target/release/harmap}")
@@ -131,12 +134,40 @@ row "deleted labels/0 chunk, export" "exit 2, names it missing" "exit $code, nam
     "$([ "$code" = 2 ] && [ "$named" -ge 1 ] && echo ok || echo FAIL)"
 
 # 6. --threads 10000.
-start=$(date +%s.%N)
+ms() { echo $(($(date +%s%N) / 1000000)); }
+start=$(ms)
 "$bin" -q --threads 10000 voxelize "$mesh" -o "$work/t.harmap" --resolution 64 --force >/dev/null 2>"$work/err.txt"
 code=$?
-secs=$(echo "$(date +%s.%N) - $start" | bc)
-row "--threads 10000 voxelize 64" "exit 0 with a warning, < 10 s" "exit $code in ${secs%.*} s" \
-    "$([ "$code" = 0 ] && grep -q warning "$work/err.txt" && [ "${secs%.*}" -lt 10 ] && echo ok || echo FAIL)"
+took=$(($(ms) - start))
+row "--threads 10000 voxelize 64" "exit 0 with a warning, < 10 s" "exit $code in $took ms" \
+    "$([ "$code" = 0 ] && grep -q warning "$work/err.txt" && [ "$took" -lt 10000 ] && echo ok || echo FAIL)"
+
+# 6b. SIGINT and SIGTERM at random moments of `harmap run` (1crn, every stage over a
+# second): exit 130 or 143 within a second, then the same command finishes the run.
+pdb=$data/molecules/1crn.pdb
+S=$work/signalled.harmap
+rm -rf "$S" "$S".*
+slow=0 wrong=0 unfinished=0
+for i in $(seq "$kills"); do
+    for sig in INT TERM; do
+        rm -rf "$S" "$S".*
+        "$bin" -q --progress never run "$pdb" -o "$S" --resolution 88 --method sor >/dev/null 2>&1 &
+        pid=$!
+        sleep "$(printf '%d.%02d' $((RANDOM % 11)) $((RANDOM % 100)))"
+        kill -"$sig" "$pid" 2>/dev/null
+        start=$(ms)
+        wait "$pid"
+        code=$?
+        took=$(($(ms) - start))
+        want=$([ "$sig" = INT ] && echo 130 || echo 143)
+        [ "$code" = 0 ] && continue # finished before the signal
+        [ "$code" = "$want" ] || wrong=$((wrong + 1))
+        [ "$took" -le 1000 ] || slow=$((slow + 1))
+        h run "$pdb" -o "$S" --resolution 88 --method sor >/dev/null 2>&1 || unfinished=$((unfinished + 1))
+    done
+done
+row "run signalled x$((kills * 2)), continued" "130/143 in <= 1 s, then finishes" "$wrong wrong code, $slow slow, $unfinished unfinished" \
+    "$(verdict "$wrong/$slow/$unfinished" 0/0/0)"
 
 # 7. A full disk: a 6 MiB tmpfs, where mounting is allowed.
 mnt=$work/full
@@ -148,6 +179,35 @@ if mount -t tmpfs -o size=6m tmpfs "$mnt" 2>/dev/null; then
     partial=$(find "$mnt" -name '*.partial*' | wc -l)
     row "run on a full 6 MiB tmpfs" "exit != 0, no partial left" "exit $code, $partial partial, ${used} KiB used" \
         "$([ "$code" != 0 ] && [ "$partial" = 0 ] && echo ok || echo FAIL)"
+    umount "$mnt"
+    # Each later stage on a full disk: voxelize, fill the disk, solve; free it, solve,
+    # fill it again, then trace, map and export.
+    mount -t tmpfs -o size=24m tmpfs "$mnt"
+    h voxelize "$mesh" -o "$mnt/R" --resolution 96 >/dev/null 2>&1
+    fill() { head -c $((24 * 1024 * 1024)) /dev/zero >"$mnt/filler" 2>/dev/null; }
+    bad="" codes=""
+    on_full() { # STAGE ARGS...: run it on the full disk, check what is left
+        "$bin" -q "$@" >/dev/null 2>"$work/err.txt"
+        local code=$?
+        codes="$codes $1:$code"
+        local left
+        left=$(find "$mnt" -name '*.partial*' -o -name '*.tmp-*' -o -name 'map.scratch' | wc -l)
+        [ "$code" != 0 ] || bad="$bad $1:exit0"
+        [ "$left" = 0 ] || bad="$bad $1:$left-left"
+        "$bin" -q info "$mnt/R" >/dev/null 2>&1 || bad="$bad $1:unreadable"
+    }
+    fill
+    on_full solve "$mnt/R"
+    rm -f "$mnt/filler"
+    h solve "$mnt/R" >/dev/null 2>&1 || bad="$bad solve-on-free-disk"
+    fill
+    on_full trace "$mnt/R" --seeds surface
+    on_full map "$mnt/R"
+    on_full export "$mnt/R" --format nifti -o "$mnt/x.nii"
+    rm -f "$mnt/filler"
+    h run "$mesh" -o "$mnt/R" --resolution 96 >/dev/null 2>&1 || bad="$bad rerun-failed"
+    row "solve/trace/map/export on a full disk" "exit != 0, nothing left, run opens" "${codes# };${bad:- nothing left}" \
+        "$([ -z "$bad" ] && echo ok || echo FAIL)"
     umount "$mnt"
 else
     row "run on a full 6 MiB tmpfs" "exit != 0, no partial left" "not run: cannot mount a tmpfs" "n/a"

@@ -575,3 +575,83 @@ fn run_stops_within_a_second_in_every_stage_and_the_printed_command_continues() 
     let left = leftovers(d.path());
     assert!(left.is_empty(), "left {left:?}");
 }
+
+#[test]
+fn large_probes_stay_within_the_memory_budget() {
+    let Some(pdb) = crate::common::shared_data("molecules/1crn.pdb") else {
+        return;
+    };
+    let d = tempfile::tempdir().unwrap();
+    let run = d.path().join("probe.harmap");
+    // A probe of 40 A on a 3 A grid: the probe centers on the SAS spheres are sampled
+    // at a fifth of the voxel, not at 0.1 A (which took 458 MiB here).
+    let o = Command::new("/usr/bin/time")
+        .args(["-f", "%M"])
+        .arg(env!("CARGO_BIN_EXE_harmap"))
+        .args(["-q", "voxelize", s(&pdb), "-o", s(&run)])
+        .args(["--spacing", "3", "--probe", "40", "--mem", "256MiB"])
+        .output()
+        .expect("/usr/bin/time runs");
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    let kib: u64 = err.lines().last().unwrap().trim().parse().unwrap();
+    // --mem plus the fixed allowance of docs/guide.md.
+    assert!(kib <= (256 + 64) * 1024, "peak {kib} KiB:\n{err}");
+}
+
+#[test]
+fn a_second_writer_is_refused_at_once_and_inverse_fails_when_no_row_gets_a_point() {
+    let d = tempfile::tempdir().unwrap();
+    let run = finished_run(d.path());
+    let r = s(&run);
+    // Every row failing (u's chunks gone) is a failure, not exit 0.
+    let pts = d.path().join("pts.csv");
+    std::fs::write(&pts, "phi,theta,psi\n0.5,1.0,0.5\n0.3,2.0,1.0\n").unwrap();
+    let out = d.path().join("out.csv");
+    expect(&["inverse", r, "--points", s(&pts), "-o", s(&out)], 0, &[]);
+    let other = d.path().join("other.harmap");
+    copy_dir(&run, &other);
+    std::fs::remove_dir_all(other.join("u").join("0").join("c")).unwrap();
+    let o = harmap(&["inverse", s(&other), "--points", s(&pts), "-o", s(&out)]);
+    let err = stderr(&o);
+    assert_ne!(o.status.code(), Some(0), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    // A second process writing the same run is refused at once, naming the lock. The
+    // first solves with no residual test, until it is killed.
+    let mut first = Command::new(env!("CARGO_BIN_EXE_harmap"))
+        .args([
+            "-q",
+            "--progress",
+            "never",
+            "solve",
+            r,
+            "--method",
+            "jacobi",
+        ])
+        .args(["--rtol", "0", "--tol", "1e-300", "--max-iter", "1000000000"])
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(500));
+    let t = Instant::now();
+    expect(
+        &["solve", r, "--rtol", "1e-9"],
+        2,
+        &["another harmap process"],
+    );
+    assert!(t.elapsed() < Duration::from_secs(5));
+    first.kill().unwrap();
+    first.wait().unwrap();
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let p = e.unwrap().path();
+        let dest = to.join(p.file_name().unwrap());
+        if p.is_dir() {
+            copy_dir(&p, &dest);
+        } else {
+            std::fs::copy(&p, &dest).unwrap();
+        }
+    }
+}

@@ -1,4 +1,5 @@
-//! Writing files whole: a temporary name, fsync, rename.
+//! Writing files whole (a temporary name, fsync, rename), and the sweep of the
+//! temporary files that killed writers left.
 
 use std::fs;
 use std::io::Write;

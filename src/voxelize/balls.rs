@@ -7,8 +7,21 @@ use std::collections::HashMap;
 
 use glam::DVec3;
 
-/// Spacing (Angstrom, or the input's unit) of probe centers on the SAS spheres.
+/// Spacing (Angstrom, or the input's unit) of probe centers on the SAS spheres: the
+/// finest, used whenever the voxels are at most `5 * SAMPLE` wide (see [`sample_for`]).
 pub const SAMPLE: f64 = 0.1;
+
+/// The spacing of probe centers on the SAS spheres for voxels of `spacing`: [`SAMPLE`],
+/// or a fifth of the voxel when that is coarser. The samples of a sphere, and the probe
+/// centers a block holds, then grow with the surface counted in voxels, not with the
+/// square of the probe radius in Angstrom: a probe of 40 or 100 A on a 3 A grid stays
+/// within the memory budget. A fifth of a voxel keeps the gaps between probe centers
+/// far below the voxel (the distance to the nearest one is off by about
+/// `sample^2 / (8 * probe)`).
+#[must_use]
+pub fn sample_for(spacing: f64) -> f64 {
+    SAMPLE.max(spacing / 5.0)
+}
 
 /// Atoms in cells of a uniform grid, for "atoms near this box" queries.
 pub(super) struct AtomGrid {
@@ -108,6 +121,8 @@ pub struct Balls {
     pub radii: Vec<f64>,
     /// Probe radius.
     pub probe: f64,
+    /// Spacing of the probe centers sampled on the SAS spheres (SES only).
+    pub sample: f64,
     /// Largest atom radius.
     pub(super) rmax: f64,
     /// The atoms in cells, for "atoms near this box".
@@ -116,14 +131,15 @@ pub struct Balls {
 }
 
 impl Balls {
-    /// Balls at `centers` of `radii`, with unit-sphere samples for SAS spheres of
-    /// `probe`.
+    /// Balls at `centers` of `radii`, with unit-sphere samples `sample` apart for SAS
+    /// spheres of `probe`.
     #[must_use]
-    pub fn new(centers: Vec<DVec3>, radii: Vec<f64>, probe: f64) -> Self {
+    pub fn new(centers: Vec<DVec3>, radii: Vec<f64>, probe: f64, sample: f64) -> Self {
         let mut b = Self::without_samples(centers, radii, probe);
+        b.sample = sample;
         for &r in &b.radii {
             let big = r + probe;
-            let n = ((4.0 * std::f64::consts::PI * big * big) / (SAMPLE * SAMPLE)).ceil() as usize;
+            let n = ((4.0 * std::f64::consts::PI * big * big) / (sample * sample)).ceil() as usize;
             b.spheres
                 .entry(big.to_bits())
                 .or_insert_with(|| sphere_points(n.max(12)));
@@ -138,6 +154,7 @@ impl Balls {
             centers,
             radii,
             probe,
+            sample: SAMPLE,
             rmax,
             grid,
             spheres: HashMap::new(),

@@ -47,6 +47,11 @@ use crate::progress::Progress;
 /// crossing circle's point joins a sphere's nearest free sample within it.
 pub const LINK: f64 = 2.0 * SAMPLE;
 
+/// [`LINK`] for the samples of `balls`: twice their spacing.
+fn link(balls: &Balls) -> f64 {
+    2.0 * balls.sample
+}
+
 /// Which of an atom's free samples are probe centers in the solvent.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Access {
@@ -143,7 +148,7 @@ fn patches(balls: &Balls, i: usize, others: &[u32]) -> Patches {
     let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&pts);
     let mut uf: Vec<u32> = (0..pts.len() as u32).collect();
     for (a, p) in pts.iter().enumerate() {
-        for nb in tree.within_unsorted::<SquaredEuclidean>(p, LINK * LINK) {
+        for nb in tree.within_unsorted::<SquaredEuclidean>(p, link(balls) * link(balls)) {
             if nb.item as usize > a {
                 union(&mut uf, a as u32, nb.item as u32);
             }
@@ -193,7 +198,7 @@ fn crossing(balls: &Balls, lo: usize, hi: usize) -> Option<(DVec3, f64, DVec3, D
     let helper = if e.x.abs() < 0.9 { DVec3::X } else { DVec3::Y };
     let u = e.cross(helper).normalize();
     let v = e.cross(u);
-    let m = ((std::f64::consts::TAU * r / SAMPLE).ceil() as usize).max(8);
+    let m = ((std::f64::consts::TAU * r / balls.sample).ceil() as usize).max(8);
     Some((ca + t * e, r, u, v, m))
 }
 
@@ -224,7 +229,7 @@ fn atom_pass(balls: &Balls, i: usize, others: &mut Vec<u32>) -> (Vec<(f64, f64)>
             });
             let patch = if free {
                 let nb = tree.nearest_one::<SquaredEuclidean>(&q.to_array());
-                (nb.distance <= LINK * LINK).then(|| p.patch[nb.item as usize])
+                (nb.distance <= link(balls) * link(balls)).then(|| p.patch[nb.item as usize])
             } else {
                 None
             };
@@ -379,7 +384,7 @@ mod tests {
             }
         }
         let radii = vec![1.7; centers.len()];
-        Balls::new(centers, radii, 1.4)
+        Balls::new(centers, radii, 1.4, SAMPLE)
     }
 
     #[test]
@@ -405,7 +410,7 @@ mod tests {
             DVec3::new(20.0, 0.0, 0.0),
             DVec3::new(2.0, 0.0, 0.0),
         ];
-        let balls = Balls::new(centers, vec![1.5; 3], 1.4);
+        let balls = Balls::new(centers, vec![1.5; 3], 1.4, SAMPLE);
         let (access, cav) = solvent_access(&balls, 1, &Silent).unwrap();
         assert_eq!(cav, Cavities::default());
         assert_eq!(access, vec![Access::All; 3]);

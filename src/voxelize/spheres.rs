@@ -7,8 +7,8 @@
 //!   outside the SES when a probe center that touches no atom (a point of the SAS
 //!   surface not inside another atom's SAS ball) lies within one probe radius of it.
 //!   Probe centers range over the SAS surface continuously, not over grid points: each
-//!   atom's SAS sphere is sampled densely (spacing `SAMPLE` Angstrom, far below the
-//!   voxel), the samples buried in other SAS balls are dropped, and a k-d tree of the
+//!   atom's SAS sphere is sampled densely (spacing `SAMPLE` = 0.1 Angstrom, or a fifth
+//!   of the voxel on coarser grids: far below the voxel), the samples buried in other SAS balls are dropped, and a k-d tree of the
 //!   rest answers "nearest probe center" per voxel. Samples on the walls of cavities a
 //!   probe cannot reach from the solvent are no probe centers ([`super::solvent`] finds
 //!   them first, in one pass over the atoms), and voxels outside the SAS solid whose
@@ -63,7 +63,12 @@ pub fn molecule_solid(
         MolSurface::Sas | MolSurface::Ses => probe,
     };
     let (balls, access, cavities) = if surface == MolSurface::Ses {
-        let balls = Balls::new(centers, radii, probe);
+        let balls = Balls::new(
+            centers,
+            radii,
+            probe,
+            super::balls::sample_for(spec.spacing),
+        );
         let (access, cavities) = solvent_access(&balls, workers, progress)?;
         (balls, access, cavities)
     } else {
