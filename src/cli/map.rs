@@ -133,15 +133,13 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     let flips = run
         .attrs()
         .ok()
-        .and_then(|v| {
-            v.pointer("/stages/trace/result/surface")
-                .filter(|m| !m.is_null())
-                .map(|m| {
-                    format!(
-                        "; the sphere map: {} of {} triangles flipped",
-                        m["flipped"], m["measured"]
-                    )
-                })
+        .and_then(|v| harmap::run::report_in::<TracedSurface>(&v, "trace"))
+        .and_then(|t| t.surface)
+        .map(|m| {
+            format!(
+                "; the sphere map: {} of {} triangles flipped",
+                m.flipped, m.measured
+            )
         })
         .unwrap_or_default();
     g.say(&format!(
@@ -152,4 +150,17 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         run.root().join("psi").display()
     ));
     Ok(())
+}
+
+/// The fields of the trace's report that the map's summary shows.
+#[derive(serde::Deserialize)]
+struct TracedSurface {
+    surface: Option<SurfaceFlips>,
+}
+
+/// Of the trace report's `surface`.
+#[derive(serde::Deserialize)]
+struct SurfaceFlips {
+    measured: u64,
+    flipped: u64,
 }

@@ -82,15 +82,18 @@ impl Boundary {
     /// part of the mesh) or removed pieces.
     #[must_use]
     pub fn solid_is_the_mesh(attrs: &serde_json::Value) -> bool {
-        ["cavity_voxels", "closing_voxels", "removed_voxels"]
-            .iter()
-            .all(|k| {
-                attrs
-                    .pointer(&format!("/stages/voxelize/result/{k}"))
-                    .and_then(serde_json::Value::as_u64)
-                    .unwrap_or(0)
-                    == 0
-            })
+        /// The voxelize result's counts of voxels that are no part of the mesh's inside.
+        #[derive(serde::Deserialize)]
+        struct Changes {
+            cavity_voxels: Option<u64>,
+            closing_voxels: Option<u64>,
+            removed_voxels: Option<u64>,
+        }
+        crate::run::report_in::<Changes>(attrs, "voxelize").is_none_or(|c| {
+            [c.cavity_voxels, c.closing_voxels, c.removed_voxels]
+                .iter()
+                .all(|v| v.unwrap_or(0) == 0)
+        })
     }
 
     /// The boundary from `mesh` (world coordinates) on the grid `spec`, keeping up to
