@@ -126,9 +126,15 @@ fn upwind_and_exact_maps_of_the_ball_are_radial() {
         "max below the boundary layer {up_deep_max}"
     );
     assert!(up_max < 0.5, "max {up_max}");
+    // The radial map keeps its orientation: no voxel outside the stop ball folds.
+    let f = rep.folded.as_ref().expect("one process counts folds");
+    assert!(f.measured > rep.voxels / 2, "{f:?}");
+    assert_eq!(f.voxels, 0, "{f:?}");
 
     let rep = run_map(&run, MapMethod::Exact, MemBudget::default());
     assert_eq!(rep.mapped, rep.voxels);
+    let f = rep.folded.as_ref().expect("one process counts folds");
+    assert_eq!((f.voxels, f.degenerate), (0, 0), "{f:?}");
     let (mut all, mut deep) = radial_errors(&run, rep.stop_radius);
     let (ex50, ex_deep_max, ex_max) = (
         quantile(&mut all, 0.5),

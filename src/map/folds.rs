@@ -14,7 +14,7 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use super::upwind::is_target;
-use crate::grid::{BlockStore, GridError, GridSpec, MemBudget, Scalar};
+use crate::grid::{BlockStore, GridError, GridSpec, MemBudget};
 use crate::math::{volume, Idx3};
 use crate::parallel::map_bounded;
 use crate::progress::Progress;
@@ -48,15 +48,22 @@ pub struct Folded {
     pub clusters_partial: bool,
 }
 
-/// Count the folded voxels of the map (`u`, `theta`, `psi` with `to_f64`) over the
-/// blocks `blocks`, outside `ball`.
+/// The unit directions of a block with a one-voxel halo (None where a voxel has none),
+/// from the stored angles or from the direction field they were written from.
+pub(super) type HaloDirections<'a> =
+    &'a (dyn Fn(Idx3) -> Result<Vec<Option<DVec3>>, GridError> + Sync);
+
+/// Count the folded voxels of the map (`u` and the directions `dirs` gives) over the
+/// blocks `blocks`, outside `ball`; `dir_bytes` is what `dirs` holds for a block. With
+/// `refine`, `dirs` are fast directions and `refine` maps one to the direction of its
+/// stored angles, which decide wherever the fast ones could give another sign.
 #[allow(clippy::too_many_arguments)]
-pub(super) fn folded<T: Scalar>(
+pub(super) fn folded(
     u: &dyn BlockStore<f64>,
     labels: &dyn BlockStore<u8>,
-    theta: &dyn BlockStore<T>,
-    psi: &dyn BlockStore<T>,
-    to_f64: fn(T) -> f64,
+    dirs: HaloDirections<'_>,
+    refine: Option<fn(DVec3) -> DVec3>,
+    dir_bytes: u64,
     ball: &StopBall,
     blocks: &[Idx3],
     mem: MemBudget,
@@ -64,7 +71,7 @@ pub(super) fn folded<T: Scalar>(
 ) -> Result<Folded, crate::Error> {
     let spec = u.spec().clone();
     let halo = spec.chunk.map(|c| c + 2);
-    let per_worker = volume(halo) * (8 + 2 * T::SIZE as u64 + 8 * 4) + volume(spec.chunk);
+    let per_worker = volume(halo) * (8 + 32) + dir_bytes + volume(spec.chunk);
     let workers = mem.workers(
         "counting folded voxels (u, theta and psi of a block with a halo)",
         0,
@@ -73,7 +80,7 @@ pub(super) fn folded<T: Scalar>(
     )?;
     progress.start("map (folded voxels)", blocks.len() as u64);
     let per_block = map_bounded(blocks, workers, |&b| -> Result<_, GridError> {
-        let r = block(u, labels, theta, psi, to_f64, ball, &spec, b)?;
+        let r = block(u, labels, dirs, refine, ball, &spec, b)?;
         progress.advance(1);
         Ok(r)
     })?;
@@ -100,29 +107,25 @@ pub(super) fn folded<T: Scalar>(
 
 /// One block: (voxels measured, degenerate, the folded voxels [z, y, x]).
 #[allow(clippy::too_many_arguments, clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
-fn block<T: Scalar>(
+fn block(
     u: &dyn BlockStore<f64>,
     labels: &dyn BlockStore<u8>,
-    theta: &dyn BlockStore<T>,
-    psi: &dyn BlockStore<T>,
-    to_f64: fn(T) -> f64,
+    dirs: HaloDirections<'_>,
+    refine: Option<fn(DVec3) -> DVec3>,
     ball: &StopBall,
     spec: &GridSpec,
     b: Idx3,
 ) -> Result<(u64, u64, Vec<[u32; 3]>), GridError> {
     let lab = labels.read_block(b)?;
     let uh = u.read_block_halo(b, 1, f64::NAN)?;
-    let nan = T::from_f64(f64::NAN);
-    let th = theta.read_block_halo(b, 1, nan)?;
-    let ps = psi.read_block_halo(b, 1, nan)?;
+    let d = dirs(b)?;
     let [hz, hy, hx] = uh.shape;
     // Per halo voxel: u and the unit direction, or None.
-    let point: Vec<Option<(f64, DVec3)>> = (0..uh.data.len())
-        .map(|i| {
-            let (t, p, uu) = (to_f64(th.data[i]), to_f64(ps.data[i]), uh.data[i]);
-            (t.is_finite() && p.is_finite() && uu.is_finite())
-                .then(|| (uu, crate::trace::unit(t, p)))
-        })
+    let point: Vec<Option<(f64, DVec3)>> = uh
+        .data
+        .iter()
+        .zip(&d)
+        .map(|(&uu, d)| d.filter(|_| uu.is_finite()).map(|d| (uu, d)))
         .collect();
     let start = spec.block_start(b);
     let shape = spec.block_shape(b);
@@ -149,29 +152,33 @@ fn block<T: Scalar>(
                 }
                 let i = ((z + 1) * hy + (y + 1)) * hx + (x + 1);
                 let Some(p0) = point[i] else { continue };
-                // Columns d p / d x, d y, d z (world order); the halo's axes are z, y, x.
-                let mut cols = [DVec3::ZERO; 3];
-                let mut ok = true;
-                for (k, col) in cols.iter_mut().enumerate() {
-                    let s = strides[2 - k];
-                    let (lo, hi) = (point[i - s], point[i + s]);
-                    let diff =
-                        |a: (f64, DVec3), b: (f64, DVec3)| (b.1 - a.1) - (b.0 * b.1 - a.0 * a.1);
-                    *col = match (lo, hi) {
-                        (Some(a), Some(b)) => diff(a, b),
-                        (None, Some(b)) => diff(p0, b),
-                        (Some(a), None) => diff(a, p0),
-                        (None, None) => {
-                            ok = false;
-                            break;
-                        }
-                    };
-                }
-                if !ok {
+                let pt = |j: usize| point[j];
+                let Some(cols) = columns(pt, p0, i, strides) else {
                     continue;
+                };
+                let mut det = cols[0].dot(cols[1].cross(cols[2]));
+                if let Some(f) = refine {
+                    // The fast directions differ from the stored angles' by about 1e-7;
+                    // where that could change the sign, the stored angles decide.
+                    // Each column moves by at most e = 4 REFINE_EPS (two directions, and
+                    // u times two); the determinant by the terms of first, second and
+                    // third order in e.
+                    let e = 4.0 * REFINE_EPS;
+                    let bound = e
+                        * (cols[1].cross(cols[2]).length()
+                            + cols[2].cross(cols[0]).length()
+                            + cols[0].cross(cols[1]).length())
+                        + e * e * (cols[0].length() + cols[1].length() + cols[2].length())
+                        + e * e * e;
+                    if det.abs() <= bound {
+                        let rp = |j: usize| point[j].map(|(uu, d)| (uu, f(d)));
+                        let r0 = (p0.0, f(p0.1));
+                        if let Some(c) = columns(rp, r0, i, strides) {
+                            det = c[0].dot(c[1].cross(c[2]));
+                        }
+                    }
                 }
                 measured += 1;
-                let det = cols[0].dot(cols[1].cross(cols[2]));
                 if det < 0.0 {
                     folded.push(g.map(|c| c as u32));
                 } else if det == 0.0 || !det.is_finite() {
@@ -182,6 +189,34 @@ fn block<T: Scalar>(
     }
     debug_assert_eq!(hz, shape[0] as usize + 2);
     Ok((measured, degenerate, folded))
+}
+
+/// Bound on how far a fast direction lies from its stored angles' (see [`folded`]).
+const REFINE_EPS: f64 = 1e-6;
+
+/// The Jacobian's columns d p / d x, d y, d z (world order) at halo voxel `i` with point
+/// `p0` = (u, direction), from its neighbours `pt(j)`: central differences, one-sided
+/// where a neighbour has no value; None where an axis has neither. The halo's axes are
+/// z, y, x (`strides`).
+#[inline]
+fn columns(
+    pt: impl Fn(usize) -> Option<(f64, DVec3)>,
+    p0: (f64, DVec3),
+    i: usize,
+    strides: [usize; 3],
+) -> Option<[DVec3; 3]> {
+    let diff = |a: (f64, DVec3), b: (f64, DVec3)| (b.1 - a.1) - (b.0 * b.1 - a.0 * a.1);
+    let mut cols = [DVec3::ZERO; 3];
+    for (k, col) in cols.iter_mut().enumerate() {
+        let s = strides[2 - k];
+        *col = match (pt(i - s), pt(i + s)) {
+            (Some(a), Some(b)) => diff(a, b),
+            (None, Some(b)) => diff(p0, b),
+            (Some(a), None) => diff(a, p0),
+            (None, None) => return None,
+        };
+    }
+    Some(cols)
 }
 
 /// The root of `i` in the union-find forest `parent` (halving the path).

@@ -6,7 +6,8 @@ use std::time::Instant;
 
 use super::angles::Angles;
 use super::exact::exact;
-use super::folds::folded;
+use super::folds::{folded, Folded, HaloDirections};
+use super::upwind::is_set;
 use super::upwind::{self, Directions, TransportStats};
 use super::{exact::exact_integrator, MapError, MapMethod, MapOptions, MapReport};
 use crate::grid::{
@@ -18,6 +19,7 @@ use crate::run::RunDir;
 use crate::solve::driver::copy_blocks;
 use crate::trace::integrate::StopBall;
 use crate::trace::surface::Boundary;
+use glam::DVec3;
 
 /// Compute the map of `run` and write `RUN/theta/0` and `RUN/psi/0`.
 pub fn map(
@@ -71,7 +73,7 @@ pub fn map_with(
         progress.warn(problem);
     }
     let t = Instant::now();
-    let (upwind_stats, stops, seconds_directions, (voxels, mapped)) = match opts.method {
+    let (upwind_stats, stops, seconds_directions, (voxels, mapped), folded) = match opts.method {
         MapMethod::Upwind => {
             let angles = Angles::<f32>::create(run, &spec)?;
             let dirs = Directions::create(&scratch, &spec, in_memory(&spec, opts))?;
@@ -80,7 +82,8 @@ pub fn map_with(
             )?;
             let seconds = t.elapsed().as_secs_f64();
             let counts = angles.finish(run, &labels, Some(&dirs), opts.mem, progress, decomp)?;
-            (Some(s), None, seconds, counts)
+            let folded = upwind_folds(run, &spec, decomp, &ball, opts, progress, &dirs)?;
+            (Some(s), None, seconds, counts, folded)
         }
         MapMethod::Exact => {
             let angles = Angles::<f64>::create(run, &spec)?;
@@ -89,42 +92,11 @@ pub fn map_with(
             )?;
             let seconds = t.elapsed().as_secs_f64();
             let counts = angles.finish(run, &labels, None, opts.mem, progress, decomp)?;
-            (None, Some(stops), seconds, counts)
+            let folded = exact_folds(run, &spec, decomp, &ball, opts, progress)?;
+            (None, Some(stops), seconds, counts, folded)
         }
     };
     let _ = std::fs::remove_dir_all(&scratch);
-    // Folded voxels, when this process holds every block (their halos read the
-    // neighbours' theta and psi, which other parts write at their own pace).
-    let owned = decomp.owned(&spec);
-    let folded = if owned.len() as u64 == spec.num_blocks() {
-        let u = run.open_image::<f64>("u")?;
-        Some(match opts.method {
-            MapMethod::Upwind => folded::<f32>(
-                &u,
-                &labels,
-                &run.open_image::<f32>("theta")?,
-                &run.open_image::<f32>("psi")?,
-                f64::from,
-                &ball,
-                &owned,
-                opts.mem,
-                progress,
-            )?,
-            MapMethod::Exact => folded::<f64>(
-                &u,
-                &labels,
-                &run.open_image::<f64>("theta")?,
-                &run.open_image::<f64>("psi")?,
-                |v| v,
-                &ball,
-                &owned,
-                opts.mem,
-                progress,
-            )?,
-        })
-    } else {
-        None
-    };
     let report = MapReport {
         method: opts.method,
         voxels,
@@ -139,6 +111,106 @@ pub fn map_with(
     };
     run.record_stage("map", t0.elapsed().as_secs_f64(), opts, &report)?;
     Ok(report)
+}
+
+/// The upwind map's folded voxels: from the direction field the angles were written
+/// from (raw f32, read with its halo without decoding the angles' chunks), and where the
+/// sign is close, from the stored angles, as `Angles::write` computed them.
+fn upwind_folds(
+    run: &RunDir,
+    spec: &GridSpec,
+    decomp: &dyn Decomposition,
+    ball: &StopBall,
+    opts: &MapOptions,
+    progress: &dyn Progress,
+    dirs: &Directions,
+) -> Result<Option<Folded>, crate::Error> {
+    let stored = |d: DVec3| {
+        let (theta, psi) = crate::trace::angles_f32([d.x as f32, d.y as f32, d.z as f32]);
+        crate::trace::unit(f64::from(theta), f64::from(psi))
+    };
+    let halo = |b: Idx3| -> Result<Vec<Option<DVec3>>, GridError> {
+        let comp = |i: usize| -> Result<Vec<f32>, GridError> {
+            Ok(dirs.c[i].read_block_halo(b, 1, 0.0)?.data)
+        };
+        let [x, y, z] = [comp(0)?, comp(1)?, comp(2)?];
+        Ok((0..x.len())
+            .map(|i| {
+                let v = [x[i], y[i], z[i]];
+                is_set(v).then(|| DVec3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2])))
+            })
+            .collect())
+    };
+    folds_with(
+        run,
+        spec,
+        decomp,
+        ball,
+        opts,
+        progress,
+        12,
+        Some(stored),
+        &halo,
+    )
+}
+
+/// The exact map's folded voxels, from the stored f64 angles.
+fn exact_folds(
+    run: &RunDir,
+    spec: &GridSpec,
+    decomp: &dyn Decomposition,
+    ball: &StopBall,
+    opts: &MapOptions,
+    progress: &dyn Progress,
+) -> Result<Option<Folded>, crate::Error> {
+    let (theta, psi) = (
+        run.open_image::<f64>("theta")?,
+        run.open_image::<f64>("psi")?,
+    );
+    let halo = |b: Idx3| -> Result<Vec<Option<DVec3>>, GridError> {
+        let th = theta.read_block_halo(b, 1, f64::NAN)?.data;
+        let ps = psi.read_block_halo(b, 1, f64::NAN)?.data;
+        Ok(th
+            .iter()
+            .zip(&ps)
+            .map(|(&t, &p)| (t.is_finite() && p.is_finite()).then(|| crate::trace::unit(t, p)))
+            .collect())
+    };
+    folds_with(run, spec, decomp, ball, opts, progress, 16, None, &halo)
+}
+
+/// The folded voxels ([`folded`]), when this process holds every block (their halos
+/// read the neighbours' directions, which other parts compute at their own pace).
+#[allow(clippy::too_many_arguments)]
+fn folds_with(
+    run: &RunDir,
+    spec: &GridSpec,
+    decomp: &dyn Decomposition,
+    ball: &StopBall,
+    opts: &MapOptions,
+    progress: &dyn Progress,
+    bytes_per_voxel: u64,
+    refine: Option<fn(DVec3) -> DVec3>,
+    dirs: HaloDirections<'_>,
+) -> Result<Option<Folded>, crate::Error> {
+    let owned = decomp.owned(spec);
+    if owned.len() as u64 != spec.num_blocks() {
+        return Ok(None);
+    }
+    let u = run.open_image::<f64>("u")?;
+    let labels = run.open_image::<u8>("labels")?;
+    let halo = crate::math::volume(spec.chunk.map(|c| c + 2));
+    Ok(Some(folded(
+        &u,
+        &labels,
+        dirs,
+        refine,
+        halo * (bytes_per_voxel + 24),
+        ball,
+        &owned,
+        opts.mem,
+        progress,
+    )?))
 }
 
 /// `dir`, emptied of what an earlier map left or created.
