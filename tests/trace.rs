@@ -425,7 +425,7 @@ fn a_sphere_maps_onto_the_sphere_without_flips_and_exports_whole_files() {
     };
     assert_eq!(boundary(&run), "input mesh");
     std::fs::rename(&mesh_path, d.path().join("moved.obj")).unwrap();
-    let o = harmap(&["trace", r, "--progress", "never"]);
+    let o = harmap(&["trace", r, "--seeds", "boundary", "--progress", "never"]);
     ok(&o);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(

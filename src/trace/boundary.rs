@@ -84,7 +84,10 @@ impl Boundary {
     pub fn solid_is_the_mesh(attrs: &serde_json::Value) -> bool {
         /// The voxelize result's counts of voxels that are no part of the mesh's inside.
         #[derive(serde::Deserialize)]
-        #[allow(clippy::struct_field_names, reason = "the names of the recorded fields")]
+        #[allow(
+            clippy::struct_field_names,
+            reason = "the names of the recorded fields"
+        )]
         struct Changes {
             cavity_voxels: Option<u64>,
             closing_voxels: Option<u64>,
