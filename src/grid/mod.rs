@@ -8,6 +8,7 @@
 //! - [`scratch()`]: the one factory of scratch grids, in memory or in a file
 //!   ([`Residence`]).
 //! - [`Scalar`]: the element types, plain numbers ([`bytemuck::Pod`]), sealed.
+//! - [`open_external_array`]: a user's Zarr v3 array, read-only ([`ExternalArray`]).
 //! - [`MemBudget`]: the `--mem` bound on what a run holds resident.
 //! - [`Decomposition`]: which blocks this process owns ([`Whole`] in one process), and
 //!   the halo-exchange hook that several processes plug into.
@@ -15,6 +16,7 @@
 mod block;
 mod budget;
 mod decomposition;
+mod external;
 mod flat;
 mod mapped;
 mod memory;
@@ -27,6 +29,7 @@ mod zarr;
 pub use block::{copy_overlap, to_usize, Block};
 pub use budget::{human, MemBudget, BASE_BYTES};
 pub use decomposition::{Decomposition, Slabs, Whole};
+pub use external::{open_external_array, ExternalArray};
 pub use flat::FlatStore;
 pub use mapped::MappedStore;
 pub use memory::MemStore;

@@ -4,12 +4,9 @@
 use std::fs::File;
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
-
-use zarrs::array::{Array, ArraySubset};
-use zarrs::filesystem::FilesystemStore;
 
 use super::{extension, InputError};
+use crate::grid::{open_external_array, ExternalArray};
 
 /// Element type of a raw volume.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -86,7 +83,7 @@ pub struct RawSpec {
 }
 
 enum Source {
-    Zarr(Box<Array<FilesystemStore>>),
+    Zarr(Box<ExternalArray>),
     Raw {
         file: File,
         dtype: RawDtype,
@@ -120,9 +117,7 @@ impl LabelVolume {
                 "a directory input must be a Zarr v3 array (no zarr.json found in it)".into(),
             ));
         }
-        let store = FilesystemStore::new(path).map_err(|e| bad(e.to_string()))?;
-        let array = Array::open(Arc::new(store), "/")
-            .map_err(|e| bad(format!("not a readable Zarr v3 array: {e}")))?;
+        let array = open_external_array(path).map_err(bad)?;
         let shape: [u64; 3] = array.shape().try_into().map_err(|_| {
             bad(format!(
                 "a label volume must be 3-D [z, y, x]; this array has shape {:?}",
@@ -187,10 +182,7 @@ impl LabelVolume {
     #[must_use]
     pub fn chunk_bytes(&self) -> u64 {
         match &self.source {
-            Source::Zarr(a) => a
-                .chunk_shape(&[0, 0, 0])
-                .map_or(0, |c| c.iter().map(|n| n.get()).product::<u64>())
-                .saturating_mul(a.data_type().fixed_size().unwrap_or(8) as u64),
+            Source::Zarr(a) => a.chunk_bytes(),
             Source::Raw { .. } => 0,
         }
     }
@@ -207,26 +199,21 @@ impl LabelVolume {
         let n = (size[0] * size[1] * size[2]) as usize;
         match &self.source {
             Source::Zarr(array) => {
-                let subset = ArraySubset::new_with_start_shape(start.to_vec(), size.to_vec())
-                    .map_err(|e| InputError::invalid(&self.path, e.to_string()))?;
-                let bytes: zarrs::array::ArrayBytes<'static> = array
-                    .retrieve_array_subset_opt(&subset, &single_threaded())
-                    .map_err(|e| {
-                        InputError::invalid(&self.path, format!("reading {start:?}+{size:?}: {e}"))
-                    })?;
-                let raw = bytes
-                    .into_fixed()
-                    .map_err(|e| InputError::invalid(&self.path, e.to_string()))?;
+                let raw = array
+                    .read_box(start, size)
+                    .map_err(|m| InputError::invalid(&self.path, m))?;
                 let dt = array.data_type();
                 let es = raw.len() / n.max(1);
-                let dtype =
-                    zarr_dtype(dt.to_string().split_whitespace().next().unwrap_or(""), es)
-                        .ok_or_else(|| {
-                            InputError::invalid(
-                        &self.path,
-                        format!("unsupported label data type {dt}; use an integer or float type"),
-                    )
-                        })?;
+                let dtype = zarr_dtype(dt.split_whitespace().next().unwrap_or(""), es).ok_or_else(
+                    || {
+                        InputError::invalid(
+                            &self.path,
+                            format!(
+                                "unsupported label data type {dt}; use an integer or float type"
+                            ),
+                        )
+                    },
+                )?;
                 Ok(raw.chunks_exact(es).map(|b| dtype.positive_ne(b)).collect())
             }
             Source::Raw { file, dtype, .. } => {
@@ -249,16 +236,8 @@ impl LabelVolume {
     }
 }
 
-/// Codec options for reads inside our own parallel loop over blocks: zarrs must not
-/// start threads of its own there.
-fn single_threaded() -> zarrs::array::CodecOptions {
-    let mut o = zarrs::array::CodecOptions::default();
-    o.set_concurrent_target(1);
-    o
-}
-
 impl RawDtype {
-    /// As [`RawDtype::positive`] but native endian (zarrs hands out native-endian bytes).
+    /// As [`RawDtype::positive`] but native endian (Zarr arrays are read as native-endian bytes).
     fn positive_ne(self, b: &[u8]) -> bool {
         if cfg!(target_endian = "little") {
             self.positive(b)

@@ -1,4 +1,4 @@
-//! An open run directory: its attributes and its images.
+//! An open run directory: its attributes, its images and its checkpoint files.
 
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -6,7 +6,9 @@ use std::path::{Path, PathBuf};
 use serde_json::{json, Map, Value};
 
 use super::staging::lock_file;
-use super::{io, ome_multiscales, write_atomic, RunError, RunLock, FORMAT_VERSION};
+use super::{
+    io, ome_multiscales, write_atomic, CheckpointFiles, RunError, RunLock, FORMAT_VERSION,
+};
 use crate::grid::{Compression, GridSpec, Scalar, ZarrStore};
 
 /// An open run directory.
@@ -227,10 +229,17 @@ impl RunDir {
         self.root.join("solve")
     }
 
+    /// The checkpoint files of the solve (in [`RunDir::checkpoint_dir`]): every read
+    /// and write of them goes through these.
+    #[must_use]
+    pub fn checkpoint_files(&self) -> CheckpointFiles {
+        CheckpointFiles::new(self.checkpoint_dir())
+    }
+
     /// Whether an interrupted solve left a checkpoint to resume from.
     #[must_use]
     pub fn has_checkpoint(&self) -> bool {
-        self.checkpoint_dir().join("manifest.json").exists()
+        self.checkpoint_files().has_manifest()
     }
 
     /// The Zarr data type of image `name` (`float32`, `float64`, `uint8`, ...).

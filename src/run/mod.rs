@@ -12,6 +12,7 @@
 //! Metadata updates go through a temporary file, fsync and rename.
 
 pub(crate) mod atomic;
+mod checkpoint;
 mod dir;
 mod ome;
 pub mod stages;
@@ -20,6 +21,7 @@ mod staging;
 use std::path::{Path, PathBuf};
 
 pub use atomic::write_atomic;
+pub use checkpoint::{CheckpointFiles, GenerationWriter};
 pub use dir::{RunDir, StagedImages};
 pub use ome::ome_multiscales;
 pub use stages::{

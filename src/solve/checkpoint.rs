@@ -12,12 +12,12 @@
 //! then commits a new manifest atomically (temporary file, fsync, rename). A torn or
 //! damaged generation fails its checksum on resume, and the previous manifest is used.
 //!
-//! The files are written through [`CheckpointDir`], whose few methods are the only
-//! place that touches the filesystem for checkpoints.
+//! The files are read and written through the run directory
+//! ([`RunDir::checkpoint_files`]), the only place that touches the filesystem for
+//! checkpoints; this module holds their format.
 
-use std::fs;
-use std::io::{BufReader, BufWriter, Read, Write};
-use std::path::{Path, PathBuf};
+use std::io::{Read, Write};
+use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 use serde_json::json;
@@ -28,7 +28,7 @@ use super::error::SolveError;
 use super::options::SolveOptions;
 use crate::grid::{BlockStore, GridError};
 use crate::progress::Progress;
-use crate::run::{write_atomic, RunDir};
+use crate::run::{CheckpointFiles, RunDir};
 
 /// Version of the checkpoint files (2: the state is u = 1 - phi).
 pub const CHECKPOINT_FORMAT: u32 = 2;
@@ -77,134 +77,93 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> GridError + '_ {
     }
 }
 
-/// The checkpoint files of a run (`RUN/solve/`): every read and write of them.
-pub struct CheckpointDir {
-    dir: PathBuf,
+/// The manifest `name` (`manifest.json` or `manifest.prev.json`), if readable.
+fn load(files: &CheckpointFiles, name: &str) -> Option<Manifest> {
+    serde_json::from_slice(&files.read_manifest(name)?).ok()
 }
 
-impl CheckpointDir {
-    /// The checkpoint files in `dir`.
-    #[must_use]
-    pub fn new(dir: PathBuf) -> Self {
-        Self { dir }
-    }
-
-    /// The directory.
-    #[must_use]
-    pub fn path(&self) -> &Path {
-        &self.dir
-    }
-
-    fn generation_path(&self, g: usize) -> PathBuf {
-        self.dir.join(format!("g{g}.bin"))
-    }
-
-    /// The manifest `name` (`manifest.json` or `manifest.prev.json`), if readable.
-    fn load(&self, name: &str) -> Option<Manifest> {
-        serde_json::from_slice(&fs::read(self.dir.join(name)).ok()?).ok()
-    }
-
-    /// Remove every checkpoint file (a fresh start).
-    pub fn clear(&self) {
-        for name in ["manifest.json", "manifest.prev.json", "g0.bin", "g1.bin"] {
-            let _ = fs::remove_file(self.dir.join(name));
+/// Write every block of `u` to generation `g`, fsync it, and return its sha256 and
+/// length.
+fn write_generation(
+    files: &CheckpointFiles,
+    u: &dyn BlockStore<f64>,
+    g: usize,
+) -> Result<(String, u64), GridError> {
+    let path = &files.generation_path(g);
+    let mut out = files.create_generation(g).map_err(io_err(path))?;
+    let mut sha = Sha256::new();
+    let mut len = 0u64;
+    let mut buf = Vec::new();
+    for block in u.spec().block_indices() {
+        buf.clear();
+        for v in u.read_block(block)? {
+            buf.extend_from_slice(&v.to_le_bytes());
         }
+        sha.update(&buf);
+        out.write_all(&buf).map_err(io_err(path))?;
+        len += buf.len() as u64;
     }
+    out.finish().map_err(io_err(path))?;
+    Ok((hex(&sha.finalize()), len))
+}
 
-    /// Write every block of `u` to generation `g`, fsync it, and return its sha256
-    /// and length.
-    fn write_generation(
-        &self,
-        u: &dyn BlockStore<f64>,
-        g: usize,
-    ) -> Result<(String, u64), GridError> {
-        let path = &self.generation_path(g);
-        let file = fs::File::create(path).map_err(io_err(path))?;
-        let mut out = BufWriter::with_capacity(1 << 20, file);
-        let mut sha = Sha256::new();
-        let mut len = 0u64;
-        let mut buf = Vec::new();
-        for block in u.spec().block_indices() {
-            buf.clear();
-            for v in u.read_block(block)? {
-                buf.extend_from_slice(&v.to_le_bytes());
-            }
-            sha.update(&buf);
-            out.write_all(&buf).map_err(io_err(path))?;
-            len += buf.len() as u64;
-        }
-        let file = out.into_inner().map_err(|e| io_err(path)(e.into_error()))?;
-        file.sync_all().map_err(io_err(path))?;
-        Ok((hex(&sha.finalize()), len))
+/// Check the generation `m` names against it (length and sha256).
+fn verify(files: &CheckpointFiles, m: &Manifest) -> Result<(), String> {
+    let path = files.generation_path(m.generation);
+    let len = files
+        .generation_len(m.generation)
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    if len != m.bytes {
+        return Err(format!(
+            "{}: {} bytes, the manifest says {} (torn write)",
+            path.display(),
+            len,
+            m.bytes
+        ));
     }
+    let mut r = files
+        .open_generation(m.generation)
+        .map_err(|e| e.to_string())?;
+    let mut h = Sha256::new();
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let k = r.read(&mut buf).map_err(|e| e.to_string())?;
+        if k == 0 {
+            break;
+        }
+        h.update(&buf[..k]);
+    }
+    if hex(&h.finalize()) != m.sha256 {
+        return Err(format!("{}: checksum mismatch (damaged)", path.display()));
+    }
+    Ok(())
+}
 
-    /// Check the generation `m` names against it (length and sha256).
-    fn verify(&self, m: &Manifest) -> Result<(), String> {
-        let path = self.generation_path(m.generation);
-        let meta = fs::metadata(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-        if meta.len() != m.bytes {
-            return Err(format!(
-                "{}: {} bytes, the manifest says {} (torn write)",
-                path.display(),
-                meta.len(),
-                m.bytes
-            ));
-        }
-        let mut r = BufReader::new(fs::File::open(&path).map_err(|e| e.to_string())?);
-        let mut h = Sha256::new();
-        let mut buf = vec![0u8; 1 << 20];
-        loop {
-            let k = r.read(&mut buf).map_err(|e| e.to_string())?;
-            if k == 0 {
-                break;
-            }
-            h.update(&buf[..k]);
-        }
-        if hex(&h.finalize()) != m.sha256 {
-            return Err(format!("{}: checksum mismatch (damaged)", path.display()));
-        }
-        Ok(())
+/// Read the generation `m` names into `u`.
+fn read_generation(
+    files: &CheckpointFiles,
+    u: &dyn BlockStore<f64>,
+    m: &Manifest,
+) -> Result<(), GridError> {
+    let path = &files.generation_path(m.generation);
+    let mut input = files.open_generation(m.generation).map_err(io_err(path))?;
+    for block in u.spec().block_indices() {
+        let len = crate::math::volume(u.spec().block_shape(block)) as usize;
+        let mut bytes = vec![0u8; len * 8];
+        input.read_exact(&mut bytes).map_err(io_err(path))?;
+        let values: Vec<f64> = bytes
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
+            .collect();
+        u.write_block(block, &values)?;
     }
-
-    /// Read the generation `m` names into `u`.
-    pub fn read_generation(&self, u: &dyn BlockStore<f64>, m: &Manifest) -> Result<(), GridError> {
-        let path = &self.generation_path(m.generation);
-        let file = fs::File::open(path).map_err(io_err(path))?;
-        let mut input = BufReader::with_capacity(1 << 20, file);
-        for block in u.spec().block_indices() {
-            let len = crate::math::volume(u.spec().block_shape(block)) as usize;
-            let mut bytes = vec![0u8; len * 8];
-            input.read_exact(&mut bytes).map_err(io_err(path))?;
-            let values: Vec<f64> = bytes
-                .chunks_exact(8)
-                .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
-                .collect();
-            u.write_block(block, &values)?;
-        }
-        Ok(())
-    }
-
-    /// Make `m` the newest manifest, keeping the one before as `manifest.prev.json`.
-    fn commit(&self, m: &Manifest) -> Result<(), crate::Error> {
-        let manifest = self.dir.join("manifest.json");
-        if manifest.exists() {
-            let prev = self.dir.join("manifest.prev.json");
-            fs::copy(&manifest, &prev)
-                .map_err(io_err(&prev))
-                .map_err(crate::Error::from)?;
-        }
-        write_atomic(
-            &manifest,
-            serde_json::to_string_pretty(m).expect("json").as_bytes(),
-        )?;
-        Ok(())
-    }
+    Ok(())
 }
 
 /// The checkpoints of one solve.
 pub struct Checkpoints {
-    /// Their files.
-    pub files: CheckpointDir,
+    /// Their files ([`RunDir::checkpoint_files`]).
+    pub files: CheckpointFiles,
     /// What they must match ([`identity`]).
     pub identity: String,
     /// Checkpoints written by this solve.
@@ -221,7 +180,7 @@ impl Checkpoints {
         };
         let mut why = Vec::new();
         for name in ["manifest.json", "manifest.prev.json"] {
-            let Some(m) = self.files.load(name) else {
+            let Some(m) = load(&self.files, name) else {
                 why.push(format!("{name}: missing or unreadable"));
                 continue;
             };
@@ -236,7 +195,7 @@ impl Checkpoints {
                     "{name} was made for other labels or other solve options; run without --resume to start over"
                 )));
             }
-            match self.files.verify(&m) {
+            match verify(&self.files, &m) {
                 Ok(()) => {
                     if name != "manifest.json" {
                         progress.warn(&format!(
@@ -252,14 +211,19 @@ impl Checkpoints {
         Err(bad(format!("no usable checkpoint: {}", why.join("; "))))
     }
 
+    /// Read the state of checkpoint `m` (from [`Checkpoints::latest`]) into `u`.
+    pub fn read(&self, u: &dyn BlockStore<f64>, m: &Manifest) -> Result<(), GridError> {
+        read_generation(&self.files, u, m)
+    }
+
     /// Write the state `u` with `hist` as a new checkpoint.
     pub fn write(&mut self, u: &dyn BlockStore<f64>, hist: &History) -> Result<(), crate::Error> {
-        let current = self.files.load("manifest.json").map(|m| m.generation);
+        let current = load(&self.files, "manifest.json").map(|m| m.generation);
         let generation = match current {
             Some(0) => 1,
             _ => 0,
         };
-        let (sha256, bytes) = self.files.write_generation(u, generation)?;
+        let (sha256, bytes) = write_generation(&self.files, u, generation)?;
         // Resuming loads the state into generation 0 and measures its residual again.
         let mut h = hist.clone();
         h.cur = 0;
@@ -272,7 +236,8 @@ impl Checkpoints {
             bytes,
             history: h,
         };
-        self.files.commit(&m)?;
+        self.files
+            .commit_manifest(serde_json::to_string_pretty(&m).expect("json").as_bytes())?;
         self.written += 1;
         Ok(())
     }

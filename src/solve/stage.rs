@@ -12,7 +12,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use super::blocks::BlockLoop;
-use super::checkpoint::{identity, CheckpointDir, Checkpoints};
+use super::checkpoint::{identity, Checkpoints};
 use super::coarsen::coarse_specs;
 use super::cuts::fine_mask;
 use super::dirichlet::initialize;
@@ -65,7 +65,7 @@ pub fn solve_with(
     let t_setup = t0.elapsed().as_secs_f64();
 
     let mut ck = Checkpoints {
-        files: CheckpointDir::new(dir.clone()),
+        files: run.checkpoint_files(),
         identity: identity(run, opts)?,
         written: 0,
     };
@@ -264,7 +264,7 @@ fn start(
     let fine = &h.levels[0];
     let out = if opts.resume {
         let m = ck.latest(progress).map_err(crate::Error::from)?;
-        ck.files.read_generation(&*fine.u[0], &m)?;
+        ck.read(&*fine.u[0], &m)?;
         let hist = m.history;
         progress.info(&format!("resuming after {} iterations", hist.iterations));
         let at = Some(hist.iterations);
