@@ -36,6 +36,7 @@ pub mod spheres;
 mod stage;
 mod standard;
 mod topology;
+mod windows;
 
 use serde::{Deserialize, Serialize};
 
