@@ -174,6 +174,13 @@ pub struct Handle {
     /// Tunnels the piece closes: the rise of the Euler characteristic when it alone is
     /// added.
     pub closes: i64,
+    /// The piece's bounding box, lowest and highest voxel (`[z, y, x]`); where the
+    /// repair works on it.
+    #[serde(skip, default)]
+    pub lo: Idx3,
+    /// See `lo`.
+    #[serde(skip, default)]
+    pub hi: Idx3,
 }
 
 /// The pieces that closing (as written by [`close`] into `out`) adds, the largest
@@ -251,6 +258,8 @@ pub fn handles(
                 position: spec.voxel_center(seed).to_array(),
                 voxels: comps.sizes[c as usize],
                 closes,
+                lo: lo[k],
+                hi: hi[k],
             });
         }
     }
@@ -287,7 +296,7 @@ fn delta_euler(
 
 /// Euler characteristic of `{v == 1}` in a box, cells counted at their lowest corner
 /// (the cells at the box's high faces have no partner voxels and count as they are).
-fn box_euler(d: &[u8], shape: [usize; 3]) -> i64 {
+pub(super) fn box_euler(d: &[u8], shape: [usize; 3]) -> i64 {
     let [nz, ny, nx] = shape;
     let at = |z: usize, y: usize, x: usize| -> i64 {
         if z >= nz || y >= ny || x >= nx {

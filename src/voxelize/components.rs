@@ -312,6 +312,71 @@ pub fn rewrite(
     Ok(())
 }
 
+#[allow(clippy::many_single_char_names)] // z, y, x and the block's shape read as in the other passes
+/// The largest eight components other than `keep`, as regions of removed voxels with
+/// their first voxel in C order.
+pub fn first_voxels(
+    store: &dyn BlockStore<u8>,
+    comps: &Components,
+    pred: fn(u8) -> bool,
+    keep: u32,
+    workers: usize,
+) -> Result<Vec<super::repair::Region>, crate::Error> {
+    let mut order: Vec<u32> = (0..comps.sizes.len() as u32)
+        .filter(|&c| c != keep)
+        .collect();
+    order.sort_by_key(|&c| (std::cmp::Reverse(comps.sizes[c as usize]), c));
+    order.truncate(8);
+    let spec = store.spec();
+    let per_block = map_bounded(&spec.block_indices(), workers, |&b| {
+        let data = store.read_block(b)?;
+        let s = spec.block_shape(b).map(|c| c as usize);
+        let (labels, n) = label_block(&data, s, pred);
+        let bl = spec.block_linear(b) as usize;
+        let st = spec.block_start(b);
+        let mut found: Vec<(u32, Idx3)> = Vec::new();
+        if n > 0 {
+            let mut o = 0;
+            for z in 0..s[0] {
+                for y in 0..s[1] {
+                    for x in 0..s[2] {
+                        let l = labels[o];
+                        o += 1;
+                        if l != 0 {
+                            let c = comps.of(bl, l);
+                            if order.contains(&c) && !found.iter().any(|f| f.0 == c) {
+                                found.push((
+                                    c,
+                                    [st[0] + z as u64, st[1] + y as u64, st[2] + x as u64],
+                                ));
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        Ok::<_, crate::Error>(found)
+    })?;
+    let mut first: Vec<Option<Idx3>> = vec![None; order.len()];
+    for (c, v) in per_block.into_iter().flatten() {
+        let k = order.iter().position(|&o| o == c).expect("wanted");
+        if first[k].is_none_or(|f| v < f) {
+            first[k] = Some(v);
+        }
+    }
+    Ok(order
+        .iter()
+        .zip(first)
+        .filter_map(|(&c, f)| {
+            f.map(|voxel| super::repair::Region {
+                added: false,
+                voxels: comps.sizes[c as usize],
+                voxel,
+            })
+        })
+        .collect())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

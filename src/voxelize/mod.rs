@@ -37,6 +37,7 @@ pub mod spheres;
 mod stage;
 mod standard;
 mod topology;
+mod windows;
 
 use serde::{Deserialize, Serialize};
 

@@ -34,7 +34,7 @@ use crate::math::Idx3;
 pub const BYTES_PER_VOXEL: u64 = 16;
 
 /// In the growing set.
-const IN: u8 = 1;
+pub(super) const IN: u8 = 1;
 /// In the queue.
 const QUEUED: u8 = 2;
 /// Popped while not simple: looked at again when its neighbourhood changes.
@@ -71,14 +71,14 @@ pub struct Outcome {
 }
 
 /// The grid's geometry for neighbourhood work on a flat C-order array.
-struct Flat {
+pub(super) struct Flat {
     n: [usize; 3],
     /// Linear offsets of the 27 neighbourhood positions (bit order of [`super::simple`]).
     off: [isize; 27],
 }
 
 impl Flat {
-    fn new(n: [usize; 3]) -> Self {
+    pub(super) fn new(n: [usize; 3]) -> Self {
         let mut off = [0isize; 27];
         for (b, o) in off.iter_mut().enumerate() {
             let (dz, dy, dx) = (
@@ -91,7 +91,7 @@ impl Flat {
         Self { n, off }
     }
 
-    fn zyx(&self, i: usize) -> [usize; 3] {
+    pub(super) fn zyx(&self, i: usize) -> [usize; 3] {
         [
             i / (self.n[1] * self.n[2]),
             (i / self.n[2]) % self.n[1],
@@ -100,13 +100,17 @@ impl Flat {
     }
 
     /// Whether voxel `i` is on a face of the grid.
-    fn on_face(&self, i: usize) -> bool {
+    pub(super) fn on_face(&self, i: usize) -> bool {
         let [z, y, x] = self.zyx(i);
         z == 0 || y == 0 || x == 0 || z + 1 == self.n[0] || y + 1 == self.n[1] || x + 1 == self.n[2]
     }
 
     /// Linear indices of the neighbours of `i` at the given bits that lie in the grid.
-    fn neighbours<'a>(&'a self, i: usize, bits: &'a [usize]) -> impl Iterator<Item = usize> + 'a {
+    pub(super) fn neighbours<'a>(
+        &'a self,
+        i: usize,
+        bits: &'a [usize],
+    ) -> impl Iterator<Item = usize> + 'a {
         let interior = !self.on_face(i);
         let [z, y, x] = self.zyx(i).map(|c| c as isize);
         bits.iter().filter_map(move |&b| {
@@ -163,8 +167,8 @@ impl Flat {
 }
 
 /// Bits of the 6 face neighbours and of all 26 neighbours.
-const FACES: [usize; 6] = [4, 10, 12, 14, 16, 22];
-const ALL: [usize; 26] = [
+pub(super) const FACES: [usize; 6] = [4, 10, 12, 14, 16, 22];
+pub(super) const ALL: [usize; 26] = [
     0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25, 26,
 ];
 
@@ -172,7 +176,7 @@ const ALL: [usize; 26] = [
 /// it is simple for the growing set, taken as the 6-connected object (`grow_object`) or
 /// as the 26-connected background whose complement is the object (`!grow_object`).
 /// Highest `prio` first, then lowest index.
-fn grow(
+pub(super) fn grow(
     flat: &Flat,
     state: &mut [u8],
     allowed: impl Fn(usize) -> bool,
