@@ -108,13 +108,14 @@ def test_sigint_during_solve_raises_keyboardinterrupt_and_resumes_to_the_same_by
 
 
 def test_sigint_during_trace_raises_keyboardinterrupt_within_a_second(tmp_path):
-    vol = np.zeros((40, 40, 40), np.uint8)
-    z, y, x = np.mgrid[:40, :40, :40] - 19.5
-    vol[x * x + y * y + z * z <= 16 * 16] = 1
+    vol = np.zeros((64, 64, 64), np.uint8)
+    z, y, x = np.mgrid[:64, :64, :64] - 31.5
+    vol[x * x + y * y + z * z <= 25 * 25] = 1
     run = tmp_path / "ball.harmap"
     harmap.voxelize(vol, run, progress=False)
     harmap.solve(run, progress=False)
-    # Boundary seeds with tiny steps: far more than 2 s of tracing.
+    # Boundary seeds with small steps: about 7 s of tracing on two idle cores (a 40^3
+    # ball took 1.6 s, which a quiet machine finished before the signal at 2 s).
     script = textwrap.dedent(
         f"""
         import sys, time, harmap
