@@ -318,32 +318,8 @@ pub fn repair(store: &dyn BlockStore<u8>) -> Result<Outcome, crate::Error> {
     };
     drop((cut, fill, main));
 
-    // Changed regions, 26-connected, largest first (then first in C order).
-    let mut regions = Vec::new();
-    let mut seen = vec![false; total];
-    for s in 0..total {
-        if new[s] == solid[s] || seen[s] {
-            continue;
-        }
-        let added = new[s];
-        let mut voxels = 0u64;
-        seen[s] = true;
-        stack.push(s);
-        while let Some(i) = stack.pop() {
-            voxels += 1;
-            for j in flat.neighbours(i, &ALL) {
-                if !seen[j] && new[j] != solid[j] && new[j] == added {
-                    seen[j] = true;
-                    stack.push(j);
-                }
-            }
-        }
-        regions.push(Region {
-            added,
-            voxels,
-            voxel: flat.zyx(s).map(|c| c as u64),
-        });
-    }
+    // Changed regions, largest first (then first in C order).
+    let mut regions = changed_regions(&flat, &solid, &new, [0; 3]);
     regions.sort_by_key(|r| Reverse(r.voxels));
     let removed = (0..total).filter(|&i| solid[i] && !new[i]).count() as u64;
     let added = (0..total).filter(|&i| !solid[i] && new[i]).count() as u64;
@@ -387,4 +363,43 @@ pub fn repair(store: &dyn BlockStore<u8>) -> Result<Outcome, crate::Error> {
         },
         regions,
     })
+}
+
+/// The voxels where `new` differs from `solid`, as 26-connected regions of one kind (all
+/// added or all removed), in C order of their first voxel; `origin` is added to that
+/// voxel's `[z, y, x]` (a window's place in the grid).
+pub(super) fn changed_regions(
+    flat: &Flat,
+    solid: &[bool],
+    new: &[bool],
+    origin: Idx3,
+) -> Vec<Region> {
+    let mut regions = Vec::new();
+    let mut seen = vec![false; solid.len()];
+    let mut stack = Vec::new();
+    for s in 0..solid.len() {
+        if new[s] == solid[s] || seen[s] {
+            continue;
+        }
+        let added = new[s];
+        let mut voxels = 0u64;
+        seen[s] = true;
+        stack.push(s);
+        while let Some(i) = stack.pop() {
+            voxels += 1;
+            for j in flat.neighbours(i, &ALL) {
+                if !seen[j] && new[j] != solid[j] && new[j] == added {
+                    seen[j] = true;
+                    stack.push(j);
+                }
+            }
+        }
+        let z = flat.zyx(s);
+        regions.push(Region {
+            added,
+            voxels,
+            voxel: [0, 1, 2].map(|a| origin[a] + z[a] as u64),
+        });
+    }
+    regions
 }

@@ -312,14 +312,7 @@ fn tidy(env: &Env, tally: &mut Tally) -> Result<i64, crate::Error> {
             env.w_ccl,
         )?;
     }
-    let bg = components::find(
-        env.solid,
-        |v| v != 1,
-        env.w_ccl,
-        env.ccl_limit,
-        "voxelize: repair: cavities",
-        env.progress,
-    )?;
+    let bg = background(env)?;
     if bg.touches_border.iter().any(|&t| !t) {
         let outside = &bg.touches_border;
         for (c, &n) in bg.sizes.iter().enumerate() {
@@ -364,24 +357,27 @@ fn probe_radius(env: &Env) -> u32 {
     }
 }
 
+/// The pieces of the background (everything but the solid): those not touching the
+/// grid's border are cavities.
+fn background(env: &Env) -> Result<components::Components, crate::Error> {
+    components::find(
+        env.solid,
+        |v| v != 1,
+        env.w_ccl,
+        env.ccl_limit,
+        "voxelize: repair: cavities",
+        env.progress,
+    )
+}
+
 /// Whether the solid is one piece (`pieces`) without cavities (`cavities`), as far as
 /// asked.
 fn intact(env: &Env, pieces: bool, cavities: bool) -> Result<bool, crate::Error> {
     if pieces && self::pieces(env)? > 1 {
         return Ok(false);
     }
-    if cavities {
-        let bg = components::find(
-            env.solid,
-            |v| v != 1,
-            env.w_ccl,
-            env.ccl_limit,
-            "voxelize: repair: cavities",
-            env.progress,
-        )?;
-        if bg.touches_border.iter().any(|&t| !t) {
-            return Ok(false);
-        }
+    if cavities && background(env)?.touches_border.iter().any(|&t| !t) {
+        return Ok(false);
     }
     Ok(true)
 }

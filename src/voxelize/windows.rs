@@ -31,7 +31,7 @@
 use std::cmp::Reverse;
 
 use super::closing::{box_euler, edt_sq};
-use super::repair::{grow, Flat, Region, ALL, IN};
+use super::repair::{changed_regions, grow, Flat, Region, IN};
 use crate::grid::BlockStore;
 use crate::math::Idx3;
 
@@ -190,34 +190,8 @@ pub fn repair_window(
         (cut, d_cut, if ok_fill { n_fill } else { u64::MAX })
     };
 
-    // Changed regions, 26-connected, in C order of their first voxel.
-    let mut regions = Vec::new();
-    let mut seen = vec![false; total];
-    let mut stack = Vec::new();
-    for s in 0..total {
-        if new[s] == solid[s] || seen[s] {
-            continue;
-        }
-        let added = new[s];
-        let mut voxels = 0u64;
-        seen[s] = true;
-        stack.push(s);
-        while let Some(i) = stack.pop() {
-            voxels += 1;
-            for j in flat.neighbours(i, &ALL) {
-                if !seen[j] && new[j] != solid[j] && new[j] == added {
-                    seen[j] = true;
-                    stack.push(j);
-                }
-            }
-        }
-        let z = flat.zyx(s);
-        regions.push(Region {
-            added,
-            voxels,
-            voxel: [0, 1, 2].map(|a| origin[a] + z[a] as u64),
-        });
-    }
+    // Changed regions, in C order of their first voxel.
+    let regions = changed_regions(&flat, &solid, &new, origin);
     let removed = (0..total).filter(|&i| solid[i] && !new[i]).count() as u64;
     let added = (0..total).filter(|&i| !solid[i] && new[i]).count() as u64;
 
