@@ -27,6 +27,7 @@ mod grid_fit;
 pub mod mesh_genus;
 mod options;
 mod prepare;
+mod probe_band;
 mod probes;
 mod repair;
 mod report;

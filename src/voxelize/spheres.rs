@@ -25,6 +25,7 @@ use serde::{Deserialize, Serialize};
 
 use super::balls::Balls;
 pub use super::balls::SAMPLE;
+use super::probe_band::{rasterize, ProbeBand, Verdict, ATOM, GROWN, OUT};
 use super::solvent::{solvent_access, Access, Cavities};
 use crate::grid::{BlockStore, GridError, GridSpec};
 use crate::input::molecule::Molecule;
@@ -172,47 +173,39 @@ fn block_solid(
         t.nearest_one::<SquaredEuclidean>(&p.to_array()).distance
     };
     let probe2 = probe * probe;
-    let mut k = 0;
-    for z in 0..sh[0] {
-        for y in 0..sh[1] {
-            for x in 0..sh[2] {
-                let p = corner([st[0] + z, st[1] + y, st[2] + x]);
-                let mut in_vdw = false;
-                let mut in_grown = false;
-                for &i in &near {
-                    let d2 = (p - centers[i as usize]).length_squared();
-                    let r = radii[i as usize];
-                    if d2 <= r * r {
-                        in_vdw = true;
-                        in_grown = true;
-                        break;
-                    }
-                    let g = r + grow;
-                    if d2 <= g * g {
-                        in_grown = true;
-                    }
+    let state = rasterize(spec, st, sh, &near, centers, radii, grow);
+    // Inside the SAS and no atom: the band decides, or the tree where it cannot.
+    let band = (surface == MolSurface::Ses && state.contains(&GROWN))
+        .then(|| ProbeBand::new(spec, st, sh, &pts, probe))
+        .flatten();
+    let (ny, nx) = (sh[1] as usize, sh[2] as usize);
+    for (k, (o, &v)) in out.iter_mut().zip(&state).enumerate() {
+        let (z, y, x) = (k / (ny * nx), (k / nx) % ny, k % nx);
+        let p = || corner([st[0] + z as u64, st[1] + y as u64, st[2] + x as u64]);
+        *o = u8::from(match (surface, v) {
+            (MolSurface::Vdw, v) => v == ATOM,
+            (MolSurface::Sas, v) => v != OUT,
+            (MolSurface::Ses, ATOM) => true,
+            // Inside the SAS: solid unless a probe in the solvent reaches it.
+            (MolSurface::Ses, GROWN) => {
+                let verdict = band.as_ref().map_or(Verdict::Ask, |b| b.verdict(z, y, x));
+                match verdict {
+                    Verdict::Solid => true,
+                    Verdict::Open => false,
+                    Verdict::Ask => tree.as_ref().is_none_or(|t| nearest(t, p()) >= probe2),
                 }
-                out[k] = u8::from(match surface {
-                    MolSurface::Vdw => in_vdw,
-                    MolSurface::Sas => in_grown,
-                    // Inside the SAS: solid unless a probe in the solvent reaches it.
-                    // Outside: solid in a cavity's probe-center space, where the
-                    // nearest probe center (nearest point of that space's boundary)
-                    // is on a cavity wall.
-                    MolSurface::Ses if in_grown => {
-                        in_vdw || tree.as_ref().is_none_or(|t| nearest(t, p) >= probe2)
-                    }
-                    MolSurface::Ses => cav.as_ref().is_some_and(|c| {
-                        if p.cmplt(cav_box.0).any() || p.cmpgt(cav_box.1).any() {
-                            return false;
-                        }
-                        let dc = nearest(c, p);
-                        dc < probe2 && tree.as_ref().is_none_or(|t| nearest(t, p) > dc)
-                    }),
-                });
-                k += 1;
             }
-        }
+            // Outside: solid in a cavity's probe-center space, where the nearest probe
+            // center (nearest point of that space's boundary) is on a cavity wall.
+            (MolSurface::Ses, _) => cav.as_ref().is_some_and(|c| {
+                let p = p();
+                if p.cmplt(cav_box.0).any() || p.cmpgt(cav_box.1).any() {
+                    return false;
+                }
+                let dc = nearest(c, p);
+                dc < probe2 && tree.as_ref().is_none_or(|t| nearest(t, p) > dc)
+            }),
+        });
     }
     out
 }

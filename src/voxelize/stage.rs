@@ -73,10 +73,22 @@ pub fn voxelize(
             s.to_owned()
         }
     };
+    // A molecule's block: the atoms' states and, for the SES, the probe band's transform.
+    let molecule_block = match shape {
+        Shape::Molecule(_) => {
+            c * c * c
+                + if opts.surface == spheres::MolSurface::Ses {
+                    super::probe_band::worker_bytes(c, opts.probe, spec.spacing)
+                } else {
+                    0
+                }
+        }
+        Shape::Mesh(_) | Shape::Volume(_) => 0,
+    };
     let w_solid = opts.mem.workers(
         &what("the inside test of one block column"),
         held,
-        (c * c * spec.shape[2] * 2 + c * c * 16).max(c * c * c + input_chunk),
+        (c * c * spec.shape[2] * 2 + c * c * 16).max(c * c * c + input_chunk + molecule_block),
         threads,
     )?;
     let w_ccl = opts.mem.workers(
