@@ -202,12 +202,27 @@ fn crossing(balls: &Balls, lo: usize, hi: usize) -> Option<(DVec3, f64, DVec3, D
     Some((ca + t * e, r, u, v, m))
 }
 
-/// One atom's patches (count, tops) and the runs of its crossing circles that join them.
-fn atom_pass(balls: &Balls, i: usize, others: &mut Vec<u32>) -> (Vec<(f64, f64)>, Vec<Run>) {
+/// One atom's free samples (bit k: sample k), as [`Free`] keeps them.
+fn free_bits(balls: &Balls, i: usize, free: &[u32]) -> Vec<u64> {
+    let mut bits = vec![0u64; balls.unit_sphere(i).len().div_ceil(64)];
+    for &k in free {
+        bits[k as usize / 64] |= 1 << (k % 64);
+    }
+    bits
+}
+
+/// What one atom gives: its patches' tops, the runs of its crossing circles that join
+/// them, and its free samples.
+type AtomPass = (Vec<(f64, f64)>, Vec<Run>, Vec<u64>);
+
+/// One atom's patches (count, tops), the runs of its crossing circles that join them,
+/// and its free samples.
+fn atom_pass(balls: &Balls, i: usize, others: &mut Vec<u32>) -> AtomPass {
     balls.sas_neighbours(i, others);
     let p = patches(balls, i, others);
+    let bits = free_bits(balls, i, &p.free);
     let Some(tree) = &p.tree else {
-        return (p.top, Vec::new());
+        return (p.top, Vec::new(), bits);
     };
     let mut runs = Vec::new();
     for &j in others.iter() {
@@ -261,16 +276,38 @@ fn atom_pass(balls: &Balls, i: usize, others: &mut Vec<u32>) -> (Vec<(f64, f64)>
             runs.push(run);
         }
     }
-    (p.top, runs)
+    (p.top, runs, bits)
+}
+
+/// The free samples of every atom's SAS sphere (bit k of atom i: sample k of its sphere
+/// lies in no other SAS ball), found once here so that the blocks need not test again.
+/// A few hundred bytes per atom.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Free(pub Vec<Vec<u64>>);
+
+impl Free {
+    /// The free samples of atom `i`, in increasing order.
+    pub fn samples(&self, i: usize) -> impl Iterator<Item = usize> + '_ {
+        self.0[i].iter().enumerate().flat_map(|(w, &word)| {
+            let mut b = word;
+            std::iter::from_fn(move || {
+                (b != 0).then(|| {
+                    let t = b.trailing_zeros() as usize;
+                    b &= b - 1;
+                    w * 64 + t
+                })
+            })
+        })
+    }
 }
 
 /// Decide, for every atom, which of its free SAS samples are probe centers in the
-/// solvent (see the module documentation).
+/// solvent (see the module documentation); also returns every atom's free samples.
 pub fn solvent_access(
     balls: &Balls,
     workers: usize,
     progress: &dyn Progress,
-) -> Result<(Vec<Access>, Cavities), crate::grid::GridError> {
+) -> Result<(Vec<Access>, Free, Cavities), crate::grid::GridError> {
     const CHUNK: usize = 64;
     let n = balls.centers.len();
     let chunks: Vec<usize> = (0..n.div_ceil(CHUNK)).collect();
@@ -290,10 +327,12 @@ pub fn solvent_access(
     let mut base = vec![0u32; n + 1];
     let mut tops = Vec::new();
     let mut runs = Vec::new();
-    for (i, (top, r)) in per_chunk.into_iter().flatten().enumerate() {
+    let mut free = Free(Vec::with_capacity(n));
+    for (i, (top, r, bits)) in per_chunk.into_iter().flatten().enumerate() {
         base[i + 1] = base[i] + top.len() as u32;
         tops.extend(top);
         runs.extend(r);
+        free.0.push(bits);
     }
     let mut uf: Vec<u32> = (0..tops.len() as u32).collect();
     // Runs of one crossing, from either atom, that share circle points join patches.
@@ -361,7 +400,7 @@ pub fn solvent_access(
     for (&i, b) in mixed.iter().zip(bits) {
         access[i] = Access::Some(b);
     }
-    Ok((access, cavities))
+    Ok((access, free, cavities))
 }
 
 #[cfg(test)]
@@ -392,13 +431,13 @@ mod tests {
         // Radius 7: 80 atoms leave no gap a probe passes, and inside, F is a ball of
         // radius about 7 - 3.1.
         let closed = shell(80, 7.0, 0.0);
-        let (access, cav) = solvent_access(&closed, 2, &Silent).unwrap();
+        let (access, _, cav) = solvent_access(&closed, 2, &Silent).unwrap();
         assert_eq!(cav.count, 1, "{cav:?}");
         assert_eq!(cav.atoms as usize, closed.centers.len());
         assert!(access.iter().all(|a| matches!(a, Access::Some(_))));
         // A mouth wider than the probe: one piece, in the solvent.
         let open = shell(80, 7.0, 6.0);
-        let (access, cav) = solvent_access(&open, 2, &Silent).unwrap();
+        let (access, _, cav) = solvent_access(&open, 2, &Silent).unwrap();
         assert_eq!(cav, Cavities::default());
         assert!(access.iter().all(|a| *a == Access::All));
     }
@@ -411,7 +450,7 @@ mod tests {
             DVec3::new(2.0, 0.0, 0.0),
         ];
         let balls = Balls::new(centers, vec![1.5; 3], 1.4, SAMPLE);
-        let (access, cav) = solvent_access(&balls, 1, &Silent).unwrap();
+        let (access, _, cav) = solvent_access(&balls, 1, &Silent).unwrap();
         assert_eq!(cav, Cavities::default());
         assert_eq!(access, vec![Access::All; 3]);
     }

@@ -26,7 +26,7 @@ use serde::{Deserialize, Serialize};
 use super::balls::Balls;
 pub use super::balls::SAMPLE;
 use super::probe_band::{rasterize, ProbeBand, Verdict, ATOM, GROWN, OUT};
-use super::solvent::{solvent_access, Access, Cavities};
+use super::solvent::{solvent_access, Access, Cavities, Free};
 use crate::grid::{BlockStore, GridError, GridSpec};
 use crate::input::molecule::Molecule;
 use crate::math::Idx3;
@@ -70,11 +70,11 @@ pub fn molecule_solid(
             probe,
             super::balls::sample_for(spec.spacing),
         );
-        let (access, cavities) = solvent_access(&balls, workers, progress)?;
-        (balls, access, cavities)
+        let (access, free, cavities) = solvent_access(&balls, workers, progress)?;
+        (balls, (access, free), cavities)
     } else {
         let balls = Balls::without_samples(centers, radii, probe);
-        (balls, Vec::new(), Cavities::default())
+        (balls, (Vec::new(), Free::default()), Cavities::default())
     };
     let blocks = spec.block_indices();
     progress.start("voxelize: molecular solid", blocks.len() as u64);
@@ -94,7 +94,7 @@ fn block_solid(
     spec: &GridSpec,
     b: Idx3,
     balls: &Balls,
-    access: &[Access],
+    (access, free): &(Vec<Access>, Free),
     grow: f64,
     surface: MolSurface,
 ) -> Vec<u8> {
@@ -126,7 +126,6 @@ fn block_solid(
     // voxels in a cavity's probe-center space.
     let (mut pts, mut cav): (Vec<[f64; 3]>, Vec<[f64; 3]>) = (Vec::new(), Vec::new());
     if surface == MolSurface::Ses {
-        let mut others = Vec::new();
         let (plo, phi) = (lo - DVec3::splat(probe), hi + DVec3::splat(probe));
         let mut cand = Vec::new();
         grid.near(
@@ -142,18 +141,17 @@ fn block_solid(
             if (nearest - c).length() > big {
                 continue;
             }
-            balls.sas_neighbours(i, &mut others);
-            for (k, u) in balls.unit_sphere(i).iter().enumerate() {
-                let q = c + big * *u;
+            let unit = balls.unit_sphere(i);
+            // The free samples, found by the probe-space pass.
+            for k in free.samples(i) {
+                let q = c + big * unit[k];
                 if q.cmplt(plo).any() || q.cmpgt(phi).any() {
                     continue;
                 }
-                if !balls.buried(q, &others) {
-                    if access[i].has(k) {
-                        pts.push(q.to_array());
-                    } else {
-                        cav.push(q.to_array());
-                    }
+                if access[i].has(k) {
+                    pts.push(q.to_array());
+                } else {
+                    cav.push(q.to_array());
                 }
             }
         }
