@@ -15,7 +15,11 @@
 //!   nearest sample is on such a wall, inside a cavity, are solid.
 //!
 //! A block needs the atoms within its box grown by the largest radius plus two probe
-//! radii, and the probe centers within one probe radius of the box: nothing else.
+//! radii, and the probe centers within one probe radius of the box: nothing else. The
+//! atoms are drawn into the block ball by ball, and an exact distance transform of the
+//! probe centers' voxels decides every voxel but a thin shell around the SES surface,
+//! where the k-d tree answers ([`super::probe_band`]); the result is the same as asking
+//! the tree at every voxel.
 // Index arithmetic over the grid's axes: z, y, x and i, j, k read as in the formulas.
 #![allow(clippy::many_single_char_names)]
 
