@@ -49,6 +49,12 @@ def c_ring_obj(path):
             f.write(f"f {a + 1} {b + 1} {c + 1}\n")
 
 
+def repair_of(run):
+    """The run's repair record (stages.voxelize.result.repair)."""
+    root = zarr.open_group(str(run), mode="r")
+    return root.attrs["harmap"]["stages"]["voxelize"]["result"]["repair"]
+
+
 def solid_slice(run):
     root = zarr.open_group(str(run), mode="r")
     g = root.attrs["harmap"]["grid"]
@@ -72,12 +78,17 @@ def main():
         subprocess.run(base + ["-o", str(d / "rep.harmap")], check=True)
         raw, g = solid_slice(d / "raw.harmap")
         rep, _ = solid_slice(d / "rep.harmap")
+        r = repair_of(d / "rep.harmap")
+    print(
+        f"{r['method']}: {r['voxels_removed']} removed, {r['voxels_added']} added; "
+        f"{r['handles_cut']} cut, {r['handles_filled']} filled; the other way {r['alternative_voxels']}"
+    )
     h = g["spacing"]
     ox, oy = g["origin"][0], g["origin"][1]
     ny, nx = raw.shape
     ext = (ox - h / 2, ox + (nx - 0.5) * h, oy - h / 2, oy + (ny - 0.5) * h)
     fig, axes = plt.subplots(1, 2, figsize=(9, 4.6))
-    for ax, title, img in ((axes[0], "raw solid (--allow-genus)", raw), (axes[1], "repaired (default)", rep)):
+    for ax, title, img in ((axes[0], "raw solid (--allow-genus)", raw), (axes[1], f"repaired (default): {r['voxels_removed']} removed, {r['voxels_added']} added", rep)):
         rgb = np.ones(raw.shape + (3,))
         rgb[img] = (0.62, 0.79, 0.88)
         if img is rep:

@@ -40,10 +40,19 @@ const GAP_AT: f64 = 0.4;
 /// A torus cut open by a gap of `gap` radians at [`GAP_AT`] and capped at both ends: a
 /// closed genus-0 surface (a bent sausage) whose ends nearly touch. Outward normals.
 fn c_ring(big: f64, small: f64, gap: f64, n: usize, m: usize) -> TriMesh {
+    waisted_c_ring(big, small, small, gap, n, m)
+}
+
+/// [`c_ring`] whose tube narrows from radius `small` at the ends to `waist` opposite
+/// the gap.
+fn waisted_c_ring(big: f64, small: f64, waist: f64, gap: f64, n: usize, m: usize) -> TriMesh {
     let mut v = Vec::new();
     let u_at = |i: usize| GAP_AT + gap / 2.0 + (2.0 * PI - gap) * i as f64 / n as f64;
     for i in 0..=n {
         let u = u_at(i);
+        // 1 at the ends, 0 opposite the gap.
+        let t = 0.5 + 0.5 * (u - GAP_AT).cos();
+        let small = waist + (small - waist) * t;
         for j in 0..m {
             let w = 2.0 * PI * j as f64 / m as f64;
             let r = big + small * w.cos();
@@ -146,6 +155,51 @@ fn a_genus_0_mesh_whose_ends_touch_is_repaired_where_they_touch() {
         msg.contains(&format!("genus {raw_genus}")) && msg.contains("--topology repair"),
         "{msg}"
     );
+}
+
+#[test]
+fn a_fused_gap_is_cut_where_the_mesh_is_open_not_where_the_solid_is_thinnest() {
+    // The tube is 4.6 voxels thick at the fused ends and 2.5 opposite them: the solid
+    // alone is thinnest at the waist, but the mesh says the ends do not touch.
+    let (big, small, waist, gap) = (1.0, 0.3, 0.165, 0.02);
+    let mesh = waisted_c_ring(big, small, waist, gap, 192, 24);
+    let (draw, r) = vox(
+        &mesh,
+        &VoxelizeOptions {
+            allow_genus: true,
+            ..res(40)
+        },
+    );
+    assert!(r.unwrap().genus >= 1, "the ends fuse");
+    let (drep, r) = vox(&mesh, &res(40));
+    let r = r.unwrap();
+    assert_eq!((r.components, r.genus), (1, 0));
+    let rep = r.repair.expect("a repair is reported");
+    // Every changed voxel lies at the gap, and within a voxel of the surface.
+    let (spec, labels) = read_labels(&drep.path().join("r.harmap"));
+    let (_, raw) = read_labels(&draw.path().join("r.harmap"));
+    let solid = |l: u8| matches!(l, 1..=3);
+    let (nyx, nx) = (spec.shape[1] * spec.shape[2], spec.shape[2]);
+    let (c, s) = (GAP_AT.cos(), GAP_AT.sin());
+    let mut changed = 0;
+    for i in 0..labels.len() as u64 {
+        if solid(labels[i as usize]) == solid(raw[i as usize]) {
+            continue;
+        }
+        changed += 1;
+        let p = spec.voxel_center([i / nyx, (i / nx) % spec.shape[1], i % nx]);
+        assert!(
+            (-s * p.x + c * p.y).abs() < 2.0 * spec.spacing && c * p.x + s * p.y > 0.0,
+            "voxel {i} at {p:?} changed away from the gap ({rep:?})"
+        );
+        let d = crate::common::mesh_distance(&mesh, p);
+        assert!(
+            d <= spec.spacing,
+            "voxel {i} at {p:?} changed {:.2} voxels from the surface",
+            d / spec.spacing
+        );
+    }
+    assert_eq!(changed, rep.voxels_removed + rep.voxels_added);
 }
 
 #[test]

@@ -27,11 +27,13 @@ use std::collections::BinaryHeap;
 
 use super::closing::edt_sq;
 use super::simple::is_simple;
-use crate::grid::BlockStore;
+use super::windows::{deep_changes, depths, mesh_band};
+use crate::grid::{BlockStore, GridSpec};
+use crate::input::TriMesh;
 use crate::math::Idx3;
 
 /// Peak bytes a voxel of the grid takes during the repair.
-pub const BYTES_PER_VOXEL: u64 = 16;
+pub const BYTES_PER_VOXEL: u64 = 24;
 
 /// In the growing set.
 pub(super) const IN: u8 = 1;
@@ -231,7 +233,10 @@ pub(super) fn grow(
 /// Repair the solid `{v == 1}` of `store` in place (1 solid, 0 background): returns
 /// what changed. The caller checks the topology afterwards.
 #[allow(clippy::too_many_lines)] // the two growths and the choice between them share the depth buckets
-pub fn repair(store: &dyn BlockStore<u8>) -> Result<Outcome, crate::Error> {
+pub fn repair(
+    store: &dyn BlockStore<u8>,
+    surface: Option<(&TriMesh, &GridSpec)>,
+) -> Result<Outcome, crate::Error> {
     let spec = store.spec().clone();
     let n = spec.shape.map(|c| c as usize);
     let solid: Vec<bool> = store
@@ -242,9 +247,16 @@ pub fn repair(store: &dyn BlockStore<u8>) -> Result<Outcome, crate::Error> {
         .collect();
     let flat = Flat::new(n);
     let total = solid.len();
+    // For a mesh: each voxel's distance to it, where within a few voxels (the depths
+    // follow it there, as in the windows).
+    let near: Vec<f32> =
+        surface.map_or_else(Vec::new, |(mesh, grid)| mesh_band(mesh, grid, [0; 3], n));
 
     // Cut: from the deepest voxel (first in C order among equals), within the solid.
-    let depth = edt_sq(&solid.iter().map(|&s| !s).collect::<Vec<_>>(), n);
+    let depth = depths(
+        &edt_sq(&solid.iter().map(|&s| !s).collect::<Vec<_>>(), n),
+        &near,
+    );
     let seed = (0..total)
         .filter(|&i| solid[i])
         .max_by_key(|&i| (depth[i], Reverse(i)))
@@ -292,7 +304,7 @@ pub fn repair(store: &dyn BlockStore<u8>) -> Result<Outcome, crate::Error> {
     }
 
     // Fill: from the grid's faces inward, within the main piece's background.
-    let far = edt_sq(&main, n);
+    let far = depths(&edt_sq(&main, n), &near);
     let mut fill = vec![0u8; total];
     let mut faces_clear = true;
     for i in 0..total {
@@ -310,13 +322,16 @@ pub fn repair(store: &dyn BlockStore<u8>) -> Result<Outcome, crate::Error> {
     let added_fill = (0..total)
         .filter(|&i| !main[i] && fill[i] & IN == 0)
         .count() as u64;
-    let use_fill = faces_clear && added_fill + speck_voxels < removed_cut;
-    let new: Vec<bool> = if use_fill {
-        (0..total).map(|i| fill[i] & IN == 0).collect()
-    } else {
-        (0..total).map(|i| cut[i] & IN != 0).collect()
-    };
-    drop((cut, fill, main));
+    let cut: Vec<bool> = (0..total).map(|i| cut[i] & IN != 0).collect();
+    let fill: Vec<bool> = (0..total).map(|i| fill[i] & IN == 0).collect();
+    // Fewer changes more than a voxel from the mesh (for a mesh), then fewer changes.
+    let use_fill = faces_clear
+        && (
+            deep_changes(&solid, &fill, &near),
+            added_fill + speck_voxels,
+        ) < (deep_changes(&solid, &cut, &near), removed_cut);
+    let new = if use_fill { fill } else { cut };
+    drop((main, near));
 
     // Changed regions, largest first (then first in C order).
     let mut regions = changed_regions(&flat, &solid, &new, [0; 3]);

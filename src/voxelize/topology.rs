@@ -404,9 +404,14 @@ fn round(
         .filter(|(_, s)| s.iter().map(|&c| c as u64).product::<u64>() <= windows::MAX_WINDOW_VOXELS)
         .collect();
     let mut applied: Vec<(Idx3, [usize; 3], windows::WindowOutcome)> = Vec::new();
+    // The mesh, when the input is one: the depths the growths follow.
+    let surface = match env.shape {
+        Shape::Mesh(m) => Some((m, env.spec)),
+        _ => None,
+    };
     for &(origin, wshape) in &boxes {
         check_room(env, wshape.iter().map(|&c| c as u64).product())?;
-        if let Some(o) = windows::repair_window(env.solid, origin, wshape)? {
+        if let Some(o) = windows::repair_window(env.solid, origin, wshape, surface)? {
             applied.push((origin, wshape, o));
         }
     }
@@ -421,7 +426,7 @@ fn round(
         }
         applied.clear();
         for &(origin, wshape) in &boxes {
-            if let Some(o) = windows::repair_window(env.solid, origin, wshape)? {
+            if let Some(o) = windows::repair_window(env.solid, origin, wshape, surface)? {
                 if (o.split || o.fill) && !intact(env, o.split, o.fill)? {
                     windows::write_window(env.solid, origin, wshape, &o.before)?;
                     continue;
@@ -527,7 +532,11 @@ fn run_repair(
         }
         windowed = Tally::default();
         chi = chi_tidy;
-        let o = repair::repair(env.solid)?;
+        let surface = match env.shape {
+            Shape::Mesh(m) => Some((m, env.spec)),
+            _ => None,
+        };
+        let o = repair::repair(env.solid, surface)?;
         tally.removed += o.removed;
         tally.added += o.added;
         tally.specks += o.specks;

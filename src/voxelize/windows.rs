@@ -32,12 +32,105 @@ use std::cmp::Reverse;
 
 use super::closing::{box_euler, edt_sq};
 use super::repair::{changed_regions, grow, Flat, Region, IN};
-use crate::grid::BlockStore;
-use crate::math::Idx3;
+use crate::grid::{BlockStore, GridSpec};
+use crate::input::TriMesh;
+use crate::math::{Idx3, Vec3};
+use crate::trace::nearest::closest_on_triangle;
+
+/// Depths are compared in units of 1/`SCALE` squared voxels (the squared distance
+/// transform's integers times `SCALE`, or a squared distance to the mesh).
+const SCALE: f64 = 64.0;
+
+/// How far (voxels) from the mesh a voxel's distance to it is measured.
+pub const BAND: f64 = 2.0;
+
+/// The distance (voxels) from the center of each voxel of the box `[origin, origin +
+/// shape)` of the grid `spec` to the mesh `mesh` (world coordinates), in C order, where
+/// it is at most [`BAND`]; infinity elsewhere. Each triangle near the box visits the
+/// voxels within [`BAND`] of its bounding box: the cost is the triangles' and their
+/// band's, not the box's.
+#[must_use]
+pub fn mesh_band(mesh: &TriMesh, spec: &GridSpec, origin: Idx3, shape: [usize; 3]) -> Vec<f32> {
+    let mut near = vec![f32::INFINITY; shape.iter().product()];
+    // The box in voxel coordinates (x, y, z).
+    let o = Vec3::new(origin[2] as f64, origin[1] as f64, origin[0] as f64);
+    let n = [shape[2], shape[1], shape[0]];
+    for t in &mesh.triangles {
+        let Some(c) = t
+            .iter()
+            .map(|&i| {
+                mesh.vertices
+                    .get(i as usize)
+                    .map(|&v| spec.world_to_voxel(v) - o)
+            })
+            .collect::<Option<Vec<Vec3>>>()
+        else {
+            continue;
+        };
+        let c = [c[0], c[1], c[2]];
+        if c.iter().any(|v| !v.is_finite()) {
+            continue;
+        }
+        let (lo, hi) = (c[0].min(c[1]).min(c[2]), c[0].max(c[1]).max(c[2]));
+        // Voxel ranges (x, y, z) within BAND of the triangle's box, clipped to the box.
+        let mut r = [(0usize, 0usize); 3];
+        let mut empty = false;
+        for a in 0..3 {
+            let l = (lo[a] - BAND).ceil().max(0.0);
+            let h = (hi[a] + BAND).floor().min(n[a] as f64 - 1.0);
+            if l > h {
+                empty = true;
+                break;
+            }
+            r[a] = (l as usize, h as usize);
+        }
+        if empty {
+            continue;
+        }
+        for z in r[2].0..=r[2].1 {
+            for y in r[1].0..=r[1].1 {
+                let row = (z * shape[1] + y) * shape[2];
+                for x in r[0].0..=r[0].1 {
+                    let p = Vec3::new(x as f64, y as f64, z as f64);
+                    let d = (closest_on_triangle(p, c) - p).length();
+                    if d <= BAND && (d as f32) < near[row + x] {
+                        near[row + x] = d as f32;
+                    }
+                }
+            }
+        }
+    }
+    near
+}
+
+/// The growths' depths, in units of 1/[`SCALE`] squared voxels: the squared distance
+/// transform `edt`, or the squared distance to the mesh `near` where that is less.
+#[must_use]
+pub fn depths(edt: &[u32], near: &[f32]) -> Vec<u32> {
+    edt.iter()
+        .enumerate()
+        .map(|(i, &e)| {
+            let e = (f64::from(e) * SCALE).min(f64::from(u32::MAX));
+            let d = near
+                .get(i)
+                .map_or(f64::INFINITY, |&d| f64::from(d) * f64::from(d) * SCALE);
+            e.min(d).round() as u32
+        })
+        .collect()
+}
+
+/// Voxels where `new` differs from `solid` whose center is more than a voxel from the
+/// mesh (none without one).
+#[must_use]
+pub fn deep_changes(solid: &[bool], new: &[bool], near: &[f32]) -> u64 {
+    (0..near.len())
+        .filter(|&i| new[i] != solid[i] && near[i] > 1.0)
+        .count() as u64
+}
 
 /// Peak bytes a voxel of a window takes (the box, the masks, the growth state, the
-/// depths and the distance transform's work).
-pub const BYTES_PER_WINDOW_VOXEL: u64 = 24;
+/// distances to the mesh, the depths and the distance transform's work).
+pub const BYTES_PER_WINDOW_VOXEL: u64 = 32;
 
 /// The largest window, in voxels: a window larger than this is not repaired (the
 /// caller falls back). Fixed, so that what is repaired never depends on `--mem`.
@@ -76,12 +169,18 @@ pub fn window(shape: Idx3, lo: Idx3, hi: Idx3, margin: u64) -> (Idx3, [usize; 3]
 
 /// Repair the window `[origin, origin + shape)` of the solid `{v == 1}` in `store`:
 /// writes the better growth back and says what it did, or leaves the window as it is
-/// and returns None when neither growth removes a handle.
+/// and returns None when neither growth removes a handle. `surface`, the input mesh
+/// and the grid, when the input is a mesh: a voxel's depth is then its distance to the
+/// mesh where that is less than [`BAND`] voxels and less than its distance transform
+/// ([`mesh_band`], [`depths`]), so that the growths meet where the mesh is thin (two
+/// parts that touch in the grid but not in the mesh meet there) and changes stay near
+/// the surface.
 #[allow(clippy::too_many_lines)] // the two growths, their checks and the choice share the window's masks
 pub fn repair_window(
     store: &dyn BlockStore<u8>,
     origin: Idx3,
     shape: [usize; 3],
+    surface: Option<(&TriMesh, &GridSpec)>,
 ) -> Result<Option<WindowOutcome>, crate::Error> {
     let bx = store.read_region(origin.map(|c| c as i64), shape, 0)?;
     let solid: Vec<bool> = bx.data.iter().map(|&v| v == 1).collect();
@@ -90,42 +189,64 @@ pub fn repair_window(
     let interior = |i: usize| !flat.on_face(i);
     let as_u8 = |s: &[bool]| s.iter().map(|&b| u8::from(b)).collect::<Vec<u8>>();
     let chi0 = box_euler(&as_u8(&solid), shape);
+    let near: Vec<f32> = surface.map_or_else(Vec::new, |(mesh, spec)| {
+        mesh_band(mesh, spec, origin, shape)
+    });
+    let depths = |edt: Vec<u32>| depths(&edt, &near);
+    let deep = |new: &[bool]| deep_changes(&solid, new, &near);
 
-    // Cut: the shell's solid grows inward through the window's solid, deepest first. A
+    // Cuts: the shell's solid grows inward through the window's solid, deepest first. A
     // window with no solid on its shell holds whole pieces: the deepest voxel seeds it,
-    // as in the whole-grid cut.
-    let depth = edt_sq(&solid.iter().map(|&s| !s).collect::<Vec<_>>(), shape);
-    let mut state = vec![0u8; total];
-    let mut seeded = false;
-    for i in 0..total {
-        if solid[i] && !interior(i) {
-            state[i] = IN;
-            seeded = true;
-        }
-    }
-    if !seeded {
-        if let Some(s) = (0..total)
-            .filter(|&i| solid[i])
-            .max_by_key(|&i| (depth[i], Reverse(i)))
-        {
-            state[s] = IN;
-        }
-    }
-    grow(&flat, &mut state, |i| solid[i] && interior(i), &depth, true);
-    drop(depth);
-    let cut: Vec<bool> = (0..total)
-        .map(|i| {
-            if interior(i) {
-                state[i] & IN != 0
-            } else {
-                solid[i]
+    // as in the whole-grid cut. Two of them: the kept solid grown as a 6-connected
+    // object (its pieces and tunnels stay those of the shell's solid), and grown as a
+    // 26-connected set whose complement keeps its 6-connected topology (the removed
+    // voxels then always reach the background through faces, where the first cut can
+    // leave a pocket that touches it only along edges or corners).
+    let depth = depths(edt_sq(
+        &solid.iter().map(|&s| !s).collect::<Vec<_>>(),
+        shape,
+    ));
+    let cut_by = |object: bool| -> Vec<bool> {
+        let mut state = vec![0u8; total];
+        let mut seeded = false;
+        for i in 0..total {
+            if solid[i] && !interior(i) {
+                state[i] = IN;
+                seeded = true;
             }
-        })
-        .collect();
+        }
+        if !seeded {
+            if let Some(s) = (0..total)
+                .filter(|&i| solid[i])
+                .max_by_key(|&i| (depth[i], Reverse(i)))
+            {
+                state[s] = IN;
+            }
+        }
+        grow(
+            &flat,
+            &mut state,
+            |i| solid[i] && interior(i),
+            &depth,
+            object,
+        );
+        (0..total)
+            .map(|i| {
+                if interior(i) {
+                    state[i] & IN != 0
+                } else {
+                    solid[i]
+                }
+            })
+            .collect()
+    };
+    let cut6 = cut_by(true);
+    let cut26 = cut_by(false);
+    drop(depth);
 
     // Fill: the shell's background grows inward through the window's background,
     // farthest from the solid first.
-    let far = edt_sq(&solid, shape);
+    let far = depths(edt_sq(&solid, shape));
     let mut state = vec![0u8; total];
     for i in 0..total {
         if !solid[i] && !interior(i) {
@@ -145,50 +266,56 @@ pub fn repair_window(
         .collect();
     drop(state);
 
-    // Pieces of a window's solid that reach its shell.
-    let shell_pieces = |s: &[bool]| {
-        let (labels, n) = super::components::label_block(&as_u8(s), shape, |v| v == 1);
+    // Pieces of a window's solid (6-connected) or background (6-connected, so a count
+    // that may include pockets 26-connected to the rest: a stricter test) that reach its
+    // shell and that do not.
+    let pieces = |s: &[bool], of_solid: bool| {
+        let (labels, n) =
+            super::components::label_block(&as_u8(s), shape, |v| (v == 1) == of_solid);
         let mut on = vec![false; n as usize + 1];
         for i in 0..total {
             if !interior(i) {
                 on[labels[i] as usize] = true;
             }
         }
-        on[1..].iter().filter(|&&b| b).count()
+        let reach = on[1..].iter().filter(|&&b| b).count();
+        (reach, n as usize - reach)
     };
-    // Background pockets of the window that do not reach its shell (6-connected, so a
-    // count that may include pockets 26-connected to the rest: a stricter test).
-    let pockets = |s: &[bool]| {
-        let (labels, n) = super::components::label_block(&as_u8(s), shape, |v| v != 1);
-        let mut on = vec![false; n as usize + 1];
-        for i in 0..total {
-            if !interior(i) {
-                on[labels[i] as usize] = true;
-            }
-        }
-        on[1..].iter().filter(|&&b| !b).count()
-    };
-    let pockets0 = pockets(&solid);
+    let (_, pockets0) = pieces(&solid, false);
+    let (shell0, islands0) = pieces(&solid, true);
     let changes = |new: &[bool]| (0..total).filter(|&i| new[i] != solid[i]).count() as u64;
-    let d_cut = box_euler(&as_u8(&cut), shape) - chi0;
-    let d_fill = box_euler(&as_u8(&fill), shape) - chi0;
-    let (n_cut, n_fill) = (changes(&cut), changes(&fill));
-    let ok_cut = d_cut > 0 && pockets(&cut) <= pockets0;
-    let ok_fill = d_fill > 0 && pockets(&fill) <= pockets0;
-    let use_fill = match (ok_cut, ok_fill) {
-        (false, false) => return Ok(None),
-        (true, false) => false,
-        (false, true) => true,
-        // The one that removes more handles (a cut across two fused parts can remove
-        // two where the fill plugs one), then the one that changes fewer voxels.
-        (true, true) => (Reverse(d_fill), n_fill) < (Reverse(d_cut), n_cut),
+    // Each growth: whether it fills, its solid, the handles it removes, and whether it
+    // is kept: it removes a handle, and leaves no pocket of background and no piece of
+    // solid away from the shell that was not there.
+    let candidates: Vec<(bool, Vec<bool>, i64, bool)> =
+        [(false, cut6), (false, cut26), (true, fill)]
+            .into_iter()
+            .map(|(is_fill, new)| {
+                let d = box_euler(&as_u8(&new), shape) - chi0;
+                let ok =
+                    d > 0 && pieces(&new, false).1 <= pockets0 && pieces(&new, true).1 <= islands0;
+                (is_fill, new, d, ok)
+            })
+            .collect();
+    // The one that removes more handles (a cut across two fused parts can remove two
+    // where the fill plugs one), then the one that changes fewer voxels more than a
+    // voxel from the mesh, then the one that changes fewer voxels; the first of equals.
+    let key = |c: &(bool, Vec<bool>, i64, bool)| (Reverse(c.2), deep(&c.1), changes(&c.1));
+    let Some(best) = (0..candidates.len())
+        .filter(|&k| candidates[k].3)
+        .min_by_key(|&k| key(&candidates[k]))
+    else {
+        return Ok(None);
     };
-    let split = !use_fill && shell_pieces(&cut) > shell_pieces(&solid);
-    let (new, closes, alternative) = if use_fill {
-        (fill, d_fill, if ok_cut { n_cut } else { u64::MAX })
-    } else {
-        (cut, d_cut, if ok_fill { n_fill } else { u64::MAX })
-    };
+    let use_fill = candidates[best].0;
+    let alternative = candidates
+        .iter()
+        .filter(|c| c.3 && c.0 != use_fill)
+        .map(|c| changes(&c.1))
+        .min()
+        .unwrap_or(u64::MAX);
+    let (_, new, closes, _) = candidates.into_iter().nth(best).expect("a candidate");
+    let split = !use_fill && pieces(&new, true).0 > shell0;
 
     // Changed regions, in C order of their first voxel.
     let regions = changed_regions(&flat, &solid, &new, origin);
