@@ -208,12 +208,12 @@ class Run:
 
     @property
     def theta(self):
-        """theta, the polar angle on the ball (float32), as a read-only zarr array."""
+        """theta, the polar angle on the ball (float64), as a read-only zarr array."""
         return self._array("theta")
 
     @property
     def psi(self):
-        """psi, the azimuth on the ball (float32), as a read-only zarr array."""
+        """psi, the azimuth on the ball (float64), as a read-only zarr array."""
         return self._array("psi")
 
     @property

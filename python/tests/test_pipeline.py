@@ -41,7 +41,7 @@ def test_open_gives_metadata_reports_and_lazy_fields(spot_runs):
     assert all(r.done(s) for s in ("voxelize", "solve", "trace", "map"))
     shape = tuple(r.grid["shape"])
     assert r.phi.shape == shape and r.phi.dtype == np.float64
-    assert r.theta.dtype == np.float32 and r.labels.dtype == np.uint8
+    assert r.theta.dtype == np.float64 and r.labels.dtype == np.uint8
     # A mesh run places phi = 1 on the mesh itself (the `cuts` array holds where it
     # crosses the stencil): its boundary voxels, whose centers lie inside, are unknowns
     # just below 1. phi = 0 in the center ball, and 0 < phi < 1 at every other unknown.

@@ -17,10 +17,13 @@ use super::Global;
 /// Default: upwind transport. The arrival direction is constant along a streamline, so
 /// each voxel takes it from its neighbours nearer the center (those of lower phi),
 /// starting in the stop ball with the direction from the center; the grid is swept
-/// block by block within --mem. With --exact, a streamline is traced from every voxel
-/// instead (the reference; much slower).
+/// block by block within --mem. Where the upwind direction turns by less than 0.003
+/// radians per voxel across the flow (thin arms that squeeze the map, where its small
+/// angular error would move a point by voxels), a streamline is traced from the voxel
+/// instead; the summary says how many. With --exact, a streamline is traced from every
+/// voxel (the reference; much slower).
 ///
-/// Writes RUN/theta/0 and RUN/psi/0 (f32 radians; NaN outside the solid), which
+/// Writes RUN/theta/0 and RUN/psi/0 (f64 radians; NaN outside the solid), which
 /// `harmap export` turns into NIfTI, VTK image data or OpenDX.
 ///
 /// Examples:
@@ -79,6 +82,15 @@ pub fn summary(r: &MapReport, seconds: f64) -> String {
             u.upwind,
             u.filled,
             u.rounds[0] + u.rounds[1]
+        );
+    }
+    if let Some(h) = &r.hybrid {
+        let _ = write!(
+            s,
+            "; {} voxels ({:.2}%) traced exactly where the upwind map squeezes (turns by less than {} rad per voxel)",
+            h.traced,
+            100.0 * h.traced_fraction,
+            h.squeeze_below
         );
     }
     if let Some(f) = &r.folded {

@@ -1,17 +1,21 @@
 //! `map`: (theta, psi) for every voxel of the solid (the paper's steps 8-9).
 //!
 //! - [`upwind`] (default): the arrival direction transported up u = 1 - phi from the
-//!   stop ball, block by block; one visit per block and a few rounds.
+//!   stop ball, block by block; one visit per block and a few rounds. Then, where the
+//!   upwind direction turns slowly across the flow (`squeeze`: an angular error would
+//!   move the point by more than a third of a voxel), a streamline from the voxel with
+//!   the exact map's tracer replaces it (the hybrid map).
 //! - `exact`: a streamline from every voxel with the tracer of `trace` (the reference).
 //!
 //! Both write `RUN/theta/0` and `RUN/psi/0` (radians, NaN outside the solid and where no
-//! direction was found) and record `harmap.stages.map`. The upwind map writes f32. The
-//! exact map writes f64: its streamlines step on levels of ln u from the voxel on, so
-//! [`inverse`] can undo them step by step, and down a thin arm neighbouring voxels
-//! differ in direction by less than f32 resolves (1e-10 radians and below).
+//! direction was found) and record `harmap.stages.map`. Both write f64: the traced
+//! streamlines step on levels of ln u from the voxel on, so [`inverse`] can undo them
+//! step by step, and down a thin arm neighbouring voxels differ in direction by less
+//! than f32 resolves (1e-10 radians and below).
 //!
 //! Files: `stage` (the stage: checks, budget, record), [`upwind`] (the transport),
-//! `exact` (a streamline per voxel), `angles` (theta and psi written block by block),
+//! `exact` (a streamline per voxel, or per squeezed voxel), `squeeze` (where the
+//! upwind map is traced instead), `angles` (theta and psi written block by block),
 //! `folds` (voxels where the map folds),
 //! [`inverse`] (from (phi, theta, psi) back to a point), `error`.
 //!
@@ -25,6 +29,7 @@ mod error;
 mod exact;
 mod folds;
 pub mod inverse;
+mod squeeze;
 mod stage;
 pub mod upwind;
 
@@ -63,6 +68,18 @@ pub struct MapOptions {
     pub mem: MemBudget,
 }
 
+/// Where the default map traced streamlines: the voxels where the upwind direction
+/// turns by less than `squeeze_below` radians per voxel across the flow.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct Hybrid {
+    /// The threshold (radians per voxel).
+    pub squeeze_below: f64,
+    /// Voxels traced exactly (outside the stop ball).
+    pub traced: u64,
+    /// Their share of the solid's voxels.
+    pub traced_fraction: f64,
+}
+
 /// What a map did.
 #[derive(Clone, Debug, Serialize)]
 pub struct MapReport {
@@ -76,8 +93,11 @@ pub struct MapReport {
     pub stop_radius: f64,
     /// Upwind counters (upwind method).
     pub upwind: Option<TransportStats>,
-    /// Streamlines per stop reason (exact method; voxels inside the stop ball count as
-    /// reached without a streamline).
+    /// The voxels the default map traced exactly (upwind method).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hybrid: Option<Hybrid>,
+    /// Streamlines per stop reason (the exact map's, and the default map's where it
+    /// traced; voxels inside the stop ball count as reached without a streamline).
     pub stops: Option<std::collections::BTreeMap<&'static str, u64>>,
     /// Seconds spent computing directions (upwind: with the theta and psi of the blocks
     /// written as they are done, that is nearly all of them).

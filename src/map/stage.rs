@@ -7,9 +7,10 @@ use std::time::Instant;
 use super::angles::Angles;
 use super::exact::exact;
 use super::folds::{folded, Folded, HaloDirections};
+use super::squeeze::SQUEEZE_BELOW;
 use super::upwind::is_set;
 use super::upwind::{self, Directions, TransportStats};
-use super::{exact::exact_integrator, MapError, MapMethod, MapOptions, MapReport};
+use super::{exact::exact_integrator, Hybrid, MapError, MapMethod, MapOptions, MapReport};
 use crate::grid::{
     BlockStore, Decomposition, GridError, GridSpec, MappedStore, MemStore, Whole, ZarrStore,
 };
@@ -20,6 +21,7 @@ use crate::solve::driver::copy_blocks;
 use crate::trace::integrate::StopBall;
 use crate::trace::surface::Boundary;
 use glam::DVec3;
+use std::collections::HashMap;
 
 /// Compute the map of `run` and write `RUN/theta/0` and `RUN/psi/0`.
 pub fn map(
@@ -73,27 +75,57 @@ pub fn map_with(
         progress.warn(problem);
     }
     let t = Instant::now();
-    let (upwind_stats, stops, seconds_directions, (voxels, mapped), folded) = match opts.method {
+    let (upwind_stats, stops, hybrid, seconds_directions, (voxels, mapped), folded) = match opts
+        .method
+    {
         MapMethod::Upwind => {
-            let angles = Angles::<f32>::create(run, &spec)?;
+            let angles = Angles::<f64>::create(run, &spec)?;
             let dirs = Directions::create(&scratch, &spec, in_memory(&spec, opts))?;
             let s = upwind_map(
-                run, opts, &spec, &labels, &dirs, &angles, &ball, &boundary, progress, decomp,
+                run, opts, &spec, &labels, &dirs, &ball, &boundary, progress, decomp,
+            )?;
+            // Where the upwind map squeezes, a streamline from the voxel.
+            let traced = exact(
+                run,
+                opts,
+                &labels,
+                &angles,
+                &ball,
+                &boundary,
+                progress,
+                decomp,
+                Some(&dirs),
             )?;
             let seconds = t.elapsed().as_secs_f64();
-            let counts = angles.finish(run, &labels, Some(&dirs), opts.mem, progress, decomp)?;
-            let folded = upwind_folds(run, &spec, decomp, &ball, opts, progress, &dirs)?;
-            (Some(s), None, seconds, counts, folded)
+            let counts = angles.finish(run, &labels, None, opts.mem, progress, decomp)?;
+            let folded = match &traced.dirs {
+                Some(kept) => hybrid_folds(run, &spec, decomp, &ball, opts, progress, &dirs, kept)?,
+                None => exact_folds(run, &spec, decomp, &ball, opts, progress)?,
+            };
+            let fraction = traced.voxels as f64 / counts.0.max(1) as f64;
+            let hybrid = Hybrid {
+                squeeze_below: SQUEEZE_BELOW,
+                traced: traced.voxels,
+                traced_fraction: fraction,
+            };
+            (
+                Some(s),
+                Some(traced.stops),
+                Some(hybrid),
+                seconds,
+                counts,
+                folded,
+            )
         }
         MapMethod::Exact => {
             let angles = Angles::<f64>::create(run, &spec)?;
-            let stops = exact(
-                run, opts, &labels, &angles, &ball, &boundary, progress, decomp,
+            let traced = exact(
+                run, opts, &labels, &angles, &ball, &boundary, progress, decomp, None,
             )?;
             let seconds = t.elapsed().as_secs_f64();
             let counts = angles.finish(run, &labels, None, opts.mem, progress, decomp)?;
             let folded = exact_folds(run, &spec, decomp, &ball, opts, progress)?;
-            (None, Some(stops), seconds, counts, folded)
+            (None, Some(traced.stops), None, seconds, counts, folded)
         }
     };
     let _ = std::fs::remove_dir_all(&scratch);
@@ -103,6 +135,7 @@ pub fn map_with(
         mapped,
         stop_radius: ball.radius,
         upwind: upwind_stats,
+        hybrid,
         boundary: boundary.name(),
         integrator: stops.is_some().then(exact_integrator),
         stops,
@@ -113,10 +146,11 @@ pub fn map_with(
     Ok(report)
 }
 
-/// The upwind map's folded voxels: from the direction field the angles were written
-/// from (raw f32, read with its halo without decoding the angles' chunks), and where the
-/// sign is close, from the stored angles, as `Angles::write` computed them.
-fn upwind_folds(
+/// The default map's folded voxels: from the upwind direction field (raw f32, read
+/// with its halo without decoding the angles' chunks; the stored f64 angles are those of
+/// its directions) and the traced voxels' directions.
+#[allow(clippy::too_many_arguments)]
+fn hybrid_folds(
     run: &RunDir,
     spec: &GridSpec,
     decomp: &dyn Decomposition,
@@ -124,34 +158,34 @@ fn upwind_folds(
     opts: &MapOptions,
     progress: &dyn Progress,
     dirs: &Directions,
+    traced: &HashMap<u64, DVec3>,
 ) -> Result<Option<Folded>, crate::Error> {
-    let stored = |d: DVec3| {
-        let (theta, psi) = crate::trace::angles_f32([d.x as f32, d.y as f32, d.z as f32]);
-        crate::trace::unit(f64::from(theta), f64::from(psi))
-    };
     let halo = |b: Idx3| -> Result<Vec<Option<DVec3>>, GridError> {
-        let comp = |i: usize| -> Result<Vec<f32>, GridError> {
-            Ok(dirs.c[i].read_block_halo(b, 1, 0.0)?.data)
-        };
-        let [x, y, z] = [comp(0)?, comp(1)?, comp(2)?];
-        Ok((0..x.len())
-            .map(|i| {
-                let v = [x[i], y[i], z[i]];
-                is_set(v).then(|| DVec3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2])))
+        let d = dirs.read_halo_of(b, 1)?;
+        let st = spec.block_start(b).map(|c| c as i64 - 1);
+        let sh = spec.block_shape(b).map(|c| c as usize + 2);
+        let n = spec.shape.map(|c| c as i64);
+        Ok(d.iter()
+            .enumerate()
+            .map(|(i, v)| {
+                if !traced.is_empty() {
+                    let g = [
+                        st[0] + (i / (sh[1] * sh[2])) as i64,
+                        st[1] + ((i / sh[2]) % sh[1]) as i64,
+                        st[2] + (i % sh[2]) as i64,
+                    ];
+                    if (0..3).all(|a| g[a] >= 0 && g[a] < n[a]) {
+                        let k = ((g[0] * n[1] + g[1]) * n[2] + g[2]) as u64;
+                        if let Some(t) = traced.get(&k) {
+                            return Some(*t);
+                        }
+                    }
+                }
+                is_set(*v).then(|| DVec3::from_array(v.map(f64::from)).normalize())
             })
             .collect())
     };
-    folds_with(
-        run,
-        spec,
-        decomp,
-        ball,
-        opts,
-        progress,
-        12,
-        Some(stored),
-        &halo,
-    )
+    folds_with(run, spec, decomp, ball, opts, progress, 12, None, &halo)
 }
 
 /// The exact map's folded voxels, from the stored f64 angles.
@@ -241,7 +275,6 @@ fn upwind_map(
     spec: &GridSpec,
     labels: &ZarrStore<u8>,
     dirs: &Directions,
-    angles: &Angles<f32>,
     ball: &StopBall,
     boundary: &Boundary,
     progress: &dyn Progress,
@@ -265,12 +298,9 @@ fn upwind_map(
     let workers = opts.mem.workers(
         "the upwind map (a block of u, labels and directions per worker)",
         held + if cached { copies } else { 0 },
-        upwind::worker_bytes(spec.chunk) + Angles::<f32>::block_bytes(spec),
+        upwind::worker_bytes(spec.chunk),
         rayon::current_num_threads(),
     )?;
-    // A block's angles are written as soon as all its voxels have a direction,
-    // while its data is at hand.
-    let sink = |b: Idx3, lab: &[u8], d: &[Vec<f32>; 3]| angles.write(b, lab, d);
     let transport = |u: &dyn BlockStore<f64>, labels: &dyn BlockStore<u8>| {
         upwind::transport_with(
             u,
@@ -280,7 +310,7 @@ fn upwind_map(
             ball,
             workers,
             progress,
-            Some(&sink),
+            None,
             decomp,
         )
     };

@@ -52,8 +52,15 @@ impl Directions {
     /// three components of a voxel together).
     #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
     pub(super) fn read_halo(&self, b: Idx3) -> Result<Vec<[f32; 3]>, GridError> {
+        self.read_halo_of(b, HALO as usize)
+    }
+
+    /// Block `b` with a halo of `halo` voxels (all zero outside the grid), one [x, y, z]
+    /// per voxel.
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
+    pub fn read_halo_of(&self, b: Idx3, halo: usize) -> Result<Vec<[f32; 3]>, GridError> {
         let r = |i: usize| -> Result<Vec<f32>, GridError> {
-            Ok(self.c[i].read_block_halo(b, HALO as usize, 0.0)?.data)
+            Ok(self.c[i].read_block_halo(b, halo, 0.0)?.data)
         };
         let [x, y, z] = [r(0)?, r(1)?, r(2)?];
         Ok((0..x.len()).map(|i| [x[i], y[i], z[i]]).collect())
