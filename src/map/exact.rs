@@ -114,10 +114,17 @@ pub(super) fn exact(
     let mut i = 0;
     while i < blocks.len() {
         crate::progress::check_interrupt(progress)?;
-        // Whole blocks until the batch is full.
+        // Whole blocks until the batch is full: its streamlines, or the blocks it holds
+        // (labels and directions) a quarter of the budget, as when a few voxels of many
+        // blocks are traced.
         let mut batch: Vec<BatchBlock> = Vec::new();
         let mut seeds: Vec<DVec3> = Vec::new();
-        while i < blocks.len() && (batch.is_empty() || (seeds.len() as u64) < batch_lines) {
+        let held = |n: usize| n as u64 * volume(spec.chunk) * (1 + 32);
+        while i < blocks.len()
+            && (batch.is_empty()
+                || ((seeds.len() as u64) < batch_lines
+                    && held(batch.len() + group) <= opts.mem.work_bytes() / 4))
+        {
             let end = (i + group).min(blocks.len());
             let prepared = map_bounded(&blocks[i..end], workers, prepare)?;
             i = end;
