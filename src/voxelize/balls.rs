@@ -112,6 +112,25 @@ fn sphere_points(n: usize) -> Vec<DVec3> {
         .collect()
 }
 
+/// Pairs `(a, b)`, `a < b`, of `unit` points less than `link` apart on the sphere of
+/// radius `big`, with a relative margin of 1e-6 so that rounding of world coordinates
+/// cannot leave a pair out.
+fn close_pairs(unit: &[DVec3], big: f64, link: f64) -> Vec<(u32, u32)> {
+    let pts: Vec<[f64; 3]> = unit.iter().map(|u| (big * *u).to_array()).collect();
+    let tree = kiddo::ImmutableKdTree::<f64, 3>::new_from_slice(&pts);
+    let r = link * (1.0 + 1e-6);
+    let mut pairs = Vec::new();
+    for (a, p) in pts.iter().enumerate() {
+        for nb in tree.within_unsorted::<kiddo::SquaredEuclidean>(p, r * r) {
+            if nb.item as usize > a {
+                pairs.push((a as u32, nb.item as u32));
+            }
+        }
+    }
+    pairs.sort_unstable();
+    pairs
+}
+
 /// The balls of a molecule with what the passes share: the atom grid and, for the SES,
 /// the unit-sphere samples per SAS radius.
 pub struct Balls {
@@ -128,6 +147,9 @@ pub struct Balls {
     /// The atoms in cells, for "atoms near this box".
     pub(super) grid: AtomGrid,
     spheres: HashMap<u64, Vec<DVec3>>,
+    /// Per SAS radius: the pairs of unit-sphere samples that may lie within
+    /// `2 * sample` of each other on that sphere (a little more, for rounding).
+    links: HashMap<u64, Vec<(u32, u32)>>,
 }
 
 impl Balls {
@@ -140,9 +162,12 @@ impl Balls {
         for &r in &b.radii {
             let big = r + probe;
             let n = ((4.0 * std::f64::consts::PI * big * big) / (sample * sample)).ceil() as usize;
-            b.spheres
-                .entry(big.to_bits())
-                .or_insert_with(|| sphere_points(n.max(12)));
+            if let std::collections::hash_map::Entry::Vacant(e) = b.spheres.entry(big.to_bits()) {
+                let pts = sphere_points(n.max(12));
+                b.links
+                    .insert(big.to_bits(), close_pairs(&pts, big, 2.0 * sample));
+                e.insert(pts);
+            }
         }
         b
     }
@@ -158,6 +183,7 @@ impl Balls {
             rmax,
             grid,
             spheres: HashMap::new(),
+            links: HashMap::new(),
         }
     }
 
@@ -171,6 +197,13 @@ impl Balls {
     #[must_use]
     pub fn unit_sphere(&self, i: usize) -> &[DVec3] {
         &self.spheres[&self.sas_radius(i).to_bits()]
+    }
+
+    /// Pairs `(a, b)`, `a < b`, of atom `i`'s unit-sphere samples that may lie within
+    /// `2 * sample` of each other on its SAS sphere (SES only).
+    #[must_use]
+    pub fn sphere_links(&self, i: usize) -> &[(u32, u32)] {
+        &self.links[&self.sas_radius(i).to_bits()]
     }
 
     /// The atoms other than `i` whose SAS balls meet atom `i`'s, into `out`.

@@ -147,11 +147,23 @@ fn patches(balls: &Balls, i: usize, others: &[u32]) -> Patches {
     }
     let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&pts);
     let mut uf: Vec<u32> = (0..pts.len() as u32).collect();
-    for (a, p) in pts.iter().enumerate() {
-        for nb in tree.within_unsorted::<SquaredEuclidean>(p, link(balls) * link(balls)) {
-            if nb.item as usize > a {
-                union(&mut uf, a as u32, nb.item as u32);
-            }
+    // Free samples closer than LINK: of the sphere's pairs that may be (the same for
+    // every sphere of this radius), those whose world points are, by the distance a
+    // k-d tree would compute (the squares summed x, y, z).
+    let mut at = vec![u32::MAX; unit.len()];
+    for (a, &k) in free.iter().enumerate() {
+        at[k as usize] = a as u32;
+    }
+    let link2 = link(balls) * link(balls);
+    for &(ka, kb) in balls.sphere_links(i) {
+        let (a, b) = (at[ka as usize], at[kb as usize]);
+        if a == u32::MAX || b == u32::MAX {
+            continue;
+        }
+        let (p, q) = (pts[a as usize], pts[b as usize]);
+        let d2 = (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]);
+        if d2 + (p[2] - q[2]) * (p[2] - q[2]) <= link2 {
+            union(&mut uf, a, b);
         }
     }
     let mut id = vec![u32::MAX; pts.len()];

@@ -84,7 +84,7 @@ pub fn molecule_solid(
     progress.start("voxelize: molecular solid", blocks.len() as u64);
     crate::parallel::map_bounded(&blocks, workers, |&b| {
         crate::progress::check_interrupt(progress)?;
-        let out = block_solid(&spec, b, &balls, &access, grow, surface);
+        let out = block_solid(&spec, b, &balls, &access, grow, surface, true);
         solid.write_block(b, &out)?;
         progress.advance(1);
         Ok::<_, GridError>(())
@@ -101,6 +101,7 @@ fn block_solid(
     (access, free): &(Vec<Access>, Free),
     grow: f64,
     surface: MolSurface,
+    use_band: bool,
 ) -> Vec<u8> {
     let (centers, radii, probe, rmax, grid) = (
         &balls.centers,
@@ -177,7 +178,7 @@ fn block_solid(
     let probe2 = probe * probe;
     let state = rasterize(spec, st, sh, &near, centers, radii, grow);
     // Inside the SAS and no atom: the band decides, or the tree where it cannot.
-    let band = (surface == MolSurface::Ses && state.contains(&GROWN))
+    let band = (use_band && surface == MolSurface::Ses && state.contains(&GROWN))
         .then(|| ProbeBand::new(spec, st, sh, &pts, probe))
         .flatten();
     let (ny, nx) = (sh[1] as usize, sh[2] as usize);
@@ -210,4 +211,80 @@ fn block_solid(
         });
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::progress::Silent;
+
+    /// The SES of `centers` (radius 1.7, probe 1.4) on a grid of `spacing` in blocks of
+    /// 16, with the band and with the tree at every voxel: (solid voxels, SAS voxels).
+    fn both_ways(centers: Vec<DVec3>, spacing: f64) -> (u64, u64) {
+        let radii = vec![1.7; centers.len()];
+        let probe = 1.4;
+        let lo = centers
+            .iter()
+            .fold(DVec3::splat(f64::INFINITY), |a, &c| a.min(c));
+        let hi = centers
+            .iter()
+            .fold(DVec3::splat(f64::NEG_INFINITY), |a, &c| a.max(c));
+        let pad = 1.7 + probe + 2.0 * spacing;
+        let n = ((hi - lo + 2.0 * pad) / spacing).ceil();
+        let spec = GridSpec {
+            shape: [n.z as u64, n.y as u64, n.x as u64],
+            origin: (lo - DVec3::splat(pad)).to_array(),
+            spacing,
+            chunk: [16, 16, 16],
+            unit: None,
+        };
+        let balls = Balls::new(
+            centers,
+            radii,
+            probe,
+            super::super::balls::sample_for(spacing),
+        );
+        let (access, free, _) = solvent_access(&balls, 2, &Silent).unwrap();
+        let af = (access, free);
+        let (mut solid, mut sas) = (0, 0);
+        for b in spec.block_indices() {
+            let fast = block_solid(&spec, b, &balls, &af, probe, MolSurface::Ses, true);
+            let slow = block_solid(&spec, b, &balls, &af, probe, MolSurface::Ses, false);
+            assert_eq!(fast, slow, "block {b:?}");
+            let grown = block_solid(&spec, b, &balls, &af, probe, MolSurface::Sas, true);
+            solid += fast.iter().map(|&v| u64::from(v)).sum::<u64>();
+            sas += grown.iter().map(|&v| u64::from(v)).sum::<u64>();
+        }
+        (solid, sas)
+    }
+
+    #[test]
+    fn the_band_gives_the_solid_the_tree_gives_everywhere() {
+        // A loose cluster (crevices, pockets) from a fixed pseudo-random sequence.
+        let mut x = 12345u64;
+        let mut next = || {
+            x = x
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let cluster: Vec<DVec3> = (0..40)
+            .map(|_| DVec3::new(next(), next(), next()) * 11.0)
+            .collect();
+        let (solid, sas) = both_ways(cluster, 0.3);
+        // The erosion did something: the SES is well inside the SAS.
+        assert!(solid > 0 && solid < sas * 9 / 10, "{solid} {sas}");
+        // A closed shell: a cavity inside, whose probe centers are no solvent's.
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        let shell: Vec<DVec3> = (0..80)
+            .map(|i| {
+                let z = 1.0 - 2.0 * (f64::from(i) + 0.5) / 80.0;
+                let r = (1.0 - z * z).sqrt();
+                let t = golden * f64::from(i);
+                7.0 * DVec3::new(r * t.cos(), r * t.sin(), z)
+            })
+            .collect();
+        let (solid, sas) = both_ways(shell, 0.4);
+        assert!(solid > 0 && solid <= sas, "{solid} {sas}");
+    }
 }
