@@ -10,7 +10,7 @@ use harmap::pipeline::standard_ball_run;
 use harmap::progress::Silent;
 use harmap::run::RunDir;
 use harmap::solve::driver::{Method, StopReason};
-use harmap::solve::{solve, SolveOptions, SolveReport};
+use harmap::solve::{solve, Cycle, CycleOptions, SolveOptions, SolveReport};
 use harmap::voxelize::labels::{BOUNDARY, CENTER, EXTERIOR, INTERIOR};
 use harmap::voxelize::StandardBall;
 
@@ -59,40 +59,47 @@ fn max_diff(a: &[f64], b: &[f64], labels: &[u8]) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// The largest and the mean error of phi against the concentric spheres' analytic
+/// solution, phi(r) = (1/r0 - 1/r) / (1/r0 - 1/R) between the sink (r0 = 0.1 N) and the
+/// boundary (R = 0.45 N), over the unknowns.
+fn spheres_error(run: &Path, n: u64) -> (f64, f64) {
+    let phi = read_phi(run);
+    let (_, labels) = read_labels(run);
+    let c = (n as f64 - 1.0) / 2.0;
+    let (r0, big_r) = (0.1 * n as f64, 0.45 * n as f64);
+    let (mut max, mut sum, mut cnt) = (0.0f64, 0.0, 0.0);
+    let nu = n as usize;
+    for (i, &l) in labels.iter().enumerate() {
+        if l != INTERIOR {
+            continue;
+        }
+        let (z, y, x) = (i / (nu * nu), (i / nu) % nu, i % nu);
+        let r = [z, y, x]
+            .iter()
+            .map(|&v| (v as f64 - c).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let exact = (1.0 / r0 - 1.0 / r) / (1.0 / r0 - 1.0 / big_r);
+        let e = (phi[i] - exact).abs();
+        max = max.max(e);
+        sum += e;
+        cnt += 1.0;
+    }
+    (max, sum / cnt)
+}
+
 #[test]
 fn concentric_spheres_error_falls_with_refinement() {
-    // phi(r) = (1/r0 - 1/r) / (1/r0 - 1/R) between the sink (r0 = 0.1 N) and the
-    // boundary (R = 0.45 N). The staircased spheres make the pointwise error near them
-    // O(h) in the solution's units; the error over the interior falls as N doubles.
+    // The staircased spheres make the pointwise error near them O(h) in the solution's
+    // units; the error over the interior falls as N doubles.
     let dir = tempfile::tempdir().unwrap();
     let mut errs = Vec::new();
     for n in [32u64, 64, 96] {
         let run = ball(dir.path(), n, 0.1 * n as f64, 32);
         let rep = run_solve(&run, &opts(Method::Multigrid, 1e-10));
         assert_eq!(rep.stopped_by, StopReason::Residual);
-        let phi = read_phi(&run);
-        let (_, labels) = read_labels(&run);
-        let c = (n as f64 - 1.0) / 2.0;
-        let (r0, big_r) = (0.1 * n as f64, 0.45 * n as f64);
-        let (mut max, mut sum, mut cnt) = (0.0f64, 0.0, 0.0);
-        let nu = n as usize;
-        for (i, &l) in labels.iter().enumerate() {
-            if l != INTERIOR {
-                continue;
-            }
-            let (z, y, x) = (i / (nu * nu), (i / nu) % nu, i % nu);
-            let r = [z, y, x]
-                .iter()
-                .map(|&v| (v as f64 - c).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            let exact = (1.0 / r0 - 1.0 / r) / (1.0 / r0 - 1.0 / big_r);
-            let e = (phi[i] - exact).abs();
-            max = max.max(e);
-            sum += e;
-            cnt += 1.0;
-        }
-        errs.push((n, max, sum / cnt));
+        let (max, mean) = spheres_error(&run, n);
+        errs.push((n, max, mean));
     }
     eprintln!("N, max error, mean error: {errs:?}");
     for w in errs.windows(2) {
@@ -100,6 +107,34 @@ fn concentric_spheres_error_falls_with_refinement() {
         assert!(w[1].2 < 0.75 * w[0].2, "mean error did not fall: {errs:?}");
     }
     assert!(errs[2].1 < 0.1 && errs[2].2 < 0.01, "{errs:?}");
+}
+
+#[test]
+fn full_multigrid_stops_within_the_discretization_error() {
+    // Full multigrid with --rtol 0 (its discretization stop) against the converged
+    // solve on the concentric spheres: the same error against the analytic solution, an
+    // algebraic error (the difference of the two) well under it, in few fine-grid
+    // sweeps.
+    let dir = tempfile::tempdir().unwrap();
+    for n in [32u64, 64, 96] {
+        let run = ball(dir.path(), n, 0.1 * n as f64, 32);
+        let fmg = run_solve(&run, &opts(Method::Multigrid, 0.0));
+        assert_eq!(fmg.stopped_by, StopReason::Discretization, "N = {n}");
+        let phi_fmg = read_phi(&run);
+        let e_fmg = spheres_error(&run, n);
+        let conv = run_solve(&run, &opts(Method::Multigrid, 1e-10));
+        let e_conv = spheres_error(&run, n);
+        let (_, labels) = read_labels(&run);
+        let alg = max_diff(&phi_fmg, &read_phi(&run), &labels);
+        eprintln!(
+            "N = {n}: fmg {} iterations, {:.1} sweeps, residual {:.1e}, error (max, mean) {e_fmg:?}; converged ({} sweeps) {e_conv:?}; algebraic {alg:.2e}",
+            fmg.iterations, fmg.sweep_equivalents, fmg.relative_residual, conv.sweep_equivalents
+        );
+        assert!(fmg.sweep_equivalents <= 20.0, "{}", fmg.sweep_equivalents);
+        assert!(fmg.sweep_equivalents < 0.5 * conv.sweep_equivalents);
+        assert!(alg < 0.1 * e_conv.0, "algebraic {alg} vs {e_conv:?}");
+        assert!(e_fmg.0 <= 1.05 * e_conv.0 && e_fmg.1 <= 1.05 * e_conv.1);
+    }
 }
 
 #[test]
@@ -256,24 +291,75 @@ fn max_change_criterion_stops_slow_iterations_far_from_the_answer() {
 #[test]
 fn phi_is_the_same_bytes_for_any_thread_count_and_budget() {
     let dir = tempfile::tempdir().unwrap();
-    let mut outs = Vec::new();
-    for (threads, mem) in [(1, "1GiB"), (2, "1GiB"), (2, "30MiB")] {
-        let run = ball(dir.path(), 80, 2.0, 16);
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        let mut o = opts(Method::Multigrid, 1e-8);
-        o.mem = mem.parse().unwrap();
-        let rep = pool.install(|| run_solve(&run, &o));
-        if mem == "30MiB" {
-            assert!(!rep.in_memory[0], "the small budget should put phi on disk");
+    // Full multigrid to its own stop (--rtol 0) and to a residual, and V-cycles.
+    let v = SolveOptions {
+        cycle: CycleOptions {
+            kind: Cycle::V,
+            ..CycleOptions::default()
+        },
+        ..opts(Method::Multigrid, 1e-8)
+    };
+    for base in [
+        opts(Method::Multigrid, 0.0),
+        opts(Method::Multigrid, 1e-8),
+        v,
+    ] {
+        let mut outs = Vec::new();
+        for (threads, mem) in [(1, "1GiB"), (2, "1GiB"), (2, "30MiB")] {
+            let run = ball(dir.path(), 80, 2.0, 16);
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let o = SolveOptions {
+                mem: mem.parse().unwrap(),
+                ..base.clone()
+            };
+            let rep = pool.install(|| run_solve(&run, &o));
+            if mem == "30MiB" {
+                assert!(!rep.in_memory[0], "the small budget should put phi on disk");
+            }
+            let bits: Vec<u64> = read_phi(&run).iter().map(|v| v.to_bits()).collect();
+            outs.push((rep.iterations, rep.residual_history, bits));
         }
-        let bits: Vec<u64> = read_phi(&run).iter().map(|v| v.to_bits()).collect();
-        outs.push((rep.iterations, rep.residual_history, bits));
+        assert_eq!(outs[0], outs[1], "1 vs 2 threads, {:?}", base.cycle.kind);
+        assert_eq!(
+            outs[1], outs[2],
+            "in memory vs memory-mapped scratch, {:?}",
+            base.cycle.kind
+        );
     }
-    assert_eq!(outs[0], outs[1], "1 vs 2 threads");
-    assert_eq!(outs[1], outs[2], "in memory vs memory-mapped scratch");
+}
+
+#[test]
+fn full_multigrid_interrupted_and_resumed_gives_the_same_bytes() {
+    // Asked to stop from the start: the coarse phase runs, the first decision
+    // checkpoints its result and stops; the resume goes on with V-cycles.
+    let dir = tempfile::tempdir().unwrap();
+    let run = ball(dir.path(), 48, 2.0, 16);
+    let whole = run_solve(&run, &SolveOptions::default());
+    let expected = phi_bytes(&run);
+    let r = RunDir::open(&run).unwrap();
+    let stop = AtomicBool::new(true);
+    let e = solve(&r, &SolveOptions::default(), &stop, &Silent).unwrap_err();
+    assert!(e.to_string().contains("--resume"), "{e}");
+    let resumed = solve(
+        &r,
+        &SolveOptions {
+            resume: true,
+            ..SolveOptions::default()
+        },
+        &AtomicBool::new(false),
+        &Silent,
+    )
+    .unwrap();
+    assert_eq!(resumed.resumed_at, Some(1));
+    assert_eq!(phi_bytes(&run), expected, "resumed phi differs");
+    assert_eq!(resumed.residual_history, whole.residual_history);
+    assert_eq!(
+        resumed.sweep_equivalents.to_bits(),
+        whole.sweep_equivalents.to_bits()
+    );
 }
 
 fn bin() -> std::process::Command {

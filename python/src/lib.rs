@@ -400,6 +400,7 @@ fn adopt_input(py: Python<'_>, run: PathBuf, file: PathBuf, name: String) -> PyR
 #[allow(clippy::too_many_arguments)]
 fn solve_options(
     method: &str,
+    cycle: &str,
     rtol: f64,
     tol: f64,
     eps: f64,
@@ -417,6 +418,14 @@ fn solve_options(
             "jacobi" => Method::Jacobi,
             m => return Err(usage(format!("method '{m}': use multigrid, sor or jacobi"))),
         },
+        cycle: harmap::solve::CycleOptions {
+            kind: match cycle {
+                "fmg" => harmap::solve::Cycle::Fmg,
+                "v" => harmap::solve::Cycle::V,
+                c => return Err(usage(format!("cycle '{c}': use fmg or v"))),
+            },
+            ..harmap::solve::CycleOptions::default()
+        },
         tol,
         rtol,
         eps,
@@ -432,13 +441,14 @@ fn solve_options(
 /// Solve for phi, as `harmap solve`. Ctrl-C writes a checkpoint and raises
 /// KeyboardInterrupt; `resume=True` continues from it.
 #[pyfunction]
-#[pyo3(signature = (run, *, method="multigrid", rtol=1e-6, tol=0.0, eps=1e-4, max_iter=1000,
+#[pyo3(signature = (run, *, method="multigrid", cycle="fmg", rtol=1e-6, tol=0.0, eps=1e-4, max_iter=1000,
     omega=None, checkpoint_every=300.0, mem="1GiB", resume=false, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn solve(
     py: Python<'_>,
     run: PathBuf,
     method: &str,
+    cycle: &str,
     rtol: f64,
     tol: f64,
     eps: f64,
@@ -451,6 +461,7 @@ fn solve(
 ) -> PyResult<String> {
     let opts = solve_options(
         method,
+        cycle,
         rtol,
         tol,
         eps,
@@ -620,7 +631,7 @@ fn map(
     center=None, center_radius=2.0, topology="auto", allow_genus=false, keep_largest=false,
     close=0, unit=None, chunk=64, mem="1GiB", scratch="auto", raw_shape=None,
     raw_dtype=None, surface="ses", probe=vec![1.4], model=None, keep_hetatm=false,
-    radius=None, method="multigrid", rtol=1e-6, tol=0.0, eps=1e-4, max_iter=1000,
+    radius=None, method="multigrid", cycle="fmg", rtol=1e-6, tol=0.0, eps=1e-4, max_iter=1000,
     omega=None, checkpoint_every=300.0, seeds="surface", sample=None, stop_radius=None,
     tile=None, atol=None, h_min=1e-6, h_max=2.0, max_steps=20_000, level_step=None,
     trace_rtol=0.0, exact=false, atlas=None, report=None, progress=None))]
@@ -651,6 +662,7 @@ fn run(
     keep_hetatm: bool,
     radius: Option<f64>,
     method: &str,
+    cycle: &str,
     rtol: f64,
     tol: f64,
     eps: f64,
@@ -703,6 +715,7 @@ fn run(
         voxelize,
         solve: solve_options(
             method,
+            cycle,
             rtol,
             tol,
             eps,

@@ -9,14 +9,17 @@ use harmap::pipeline::{voxelize_new_run, Source};
 use harmap::voxelize::VoxelizeOptions;
 
 use super::progress::Bars;
+use super::solve::CycleArg;
 use super::{Global, UsageError};
 
 /// Measure a stage: time, voxels per second and peak resident memory.
 ///
 /// `harmap bench solve` builds the standard problem (an N^3 grid, the ball of radius
-/// 0.45 N, phi = 0 within 2 voxels of the center) and solves it with multigrid to rtol
-/// 1e-6, from the labels to a stored phi: seconds, cycles, fine-grid sweep
-/// equivalents, voxel updates per second and peak memory.
+/// 0.45 N, phi = 0 within 2 voxels of the center) and solves it with the default
+/// multigrid (--cycle fmg: full multigrid to the discretization error; --cycle v:
+/// V-cycles to rtol 1e-6), from the labels to a stored phi: seconds, cycles (the
+/// coarse phase of fmg is one), fine-grid sweep equivalents, voxel updates per second,
+/// the relative residual and peak memory.
 ///
 /// `harmap bench trace` solves the same problem (untimed; a solved run kept in --dir is
 /// reused) and times the whole trace of --sample boundary seeds, reading u included:
@@ -34,6 +37,7 @@ use super::{Global, UsageError};
 /// Examples:
 ///   harmap bench voxelize --n 256 --n 512 --input armadillo.obj.gz
 ///   harmap bench solve --n 256
+///   harmap bench solve --n 256 --cycle v
 ///   harmap bench solve --n 512 --mem 256MiB
 ///   harmap bench solve --n 512 --mem 256MiB --dir /scratch/b --keep
 ///   harmap bench trace --n 256 --sample 50000
@@ -62,6 +66,9 @@ pub struct Args {
     /// solved run it finds there.
     #[arg(long, requires = "dir")]
     pub keep: bool,
+    /// Multigrid's cycle for the solve (see `harmap solve --help`).
+    #[arg(long, value_enum, default_value_t = CycleArg::from(harmap::solve::SolveOptions::default().cycle.kind))]
+    pub cycle: CycleArg,
     /// Seeds `bench trace` traces (a deterministic subset of the boundary voxels).
     #[arg(long, value_name = "N", default_value_t = 50_000)]
     pub sample: u64,
@@ -164,8 +171,10 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
 /// `harmap bench solve`: the standard problem at each --n, from labels to a stored phi.
 fn bench_solve(a: &Args, g: &Global) -> anyhow::Result<()> {
     use harmap::solve::solve;
+    let opts = solve_options(a.mem, a.cycle);
     println!(
-        "harmap bench solve: standard ball (radius 0.45 N, sink radius 2), multigrid, rtol 1e-6, --mem {}, {} threads",
+        "harmap bench solve: standard ball (radius 0.45 N, sink radius 2), multigrid --cycle {}, --mem {}, {} threads",
+        opts.cycle.kind.name(),
         a.mem,
         rayon::current_num_threads()
     );
@@ -180,7 +189,7 @@ fn bench_solve(a: &Args, g: &Global) -> anyhow::Result<()> {
             let out = dir.join(format!("bench-solve-{n}.harmap"));
             let run = standard_ball(n, a.mem, &out, &bars)?;
             let t = Instant::now();
-            let r = solve(&run, &solve_options(a.mem), &stop, &bars)?;
+            let r = solve(&run, &opts, &stop, &bars)?;
             let secs = t.elapsed().as_secs_f64();
             println!(
                 "{n:>6} {secs:>9.3} {:>7} {:>8.1} {:>14.3e} {:>10.2e} {:>12}",
@@ -260,7 +269,7 @@ fn solved_ball(
     let run = standard_ball(n, mem, out, bars)?;
     let stop = std::sync::atomic::AtomicBool::new(false);
     let t = Instant::now();
-    harmap::solve::solve(&run, &solve_options(mem), &stop, bars)?;
+    harmap::solve::solve(&run, &solve_options(mem, CycleArg::Fmg), &stop, bars)?;
     Ok((run, t.elapsed().as_secs_f64()))
 }
 
@@ -321,10 +330,18 @@ fn standard_ball(
     Ok(harmap::pipeline::standard_ball_run(&p, out, true, bars)?.0)
 }
 
-/// The benchmarks' solve: multigrid defaults, no checkpoints.
-fn solve_options(mem: MemBudget) -> harmap::solve::SolveOptions {
+/// The benchmarks' solve: multigrid defaults with `cycle`, no checkpoints.
+fn solve_options(mem: MemBudget, cycle: CycleArg) -> harmap::solve::SolveOptions {
+    use harmap::solve::{Cycle, CycleOptions};
     harmap::solve::SolveOptions {
         mem,
+        cycle: CycleOptions {
+            kind: match cycle {
+                CycleArg::Fmg => Cycle::Fmg,
+                CycleArg::V => Cycle::V,
+            },
+            ..CycleOptions::default()
+        },
         checkpoint_every: 0.0,
         ..harmap::solve::SolveOptions::default()
     }

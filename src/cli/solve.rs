@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use harmap::grid::MemBudget;
 use harmap::run::RunDir;
 use harmap::solve::driver::Method;
-use harmap::solve::{solve, SolveError, SolveOptions, SolveReport};
+use harmap::solve::{solve, Cycle, CycleOptions, SolveError, SolveOptions, SolveReport};
 
 use super::progress::Bars;
 use super::{Global, UsageError};
@@ -17,10 +17,19 @@ use super::{Global, UsageError};
 /// The result goes to RUN/phi/0 (f64, NaN outside the problem); the stop criterion, the
 /// iterations and the residual history go to the run's attributes (`harmap info RUN`).
 ///
+/// Multigrid starts with full multigrid (--cycle fmg, the default): the problem solved
+/// on the coarsest level, each level's solution interpolated up as the next one's
+/// start and improved by a V-cycle, then V-cycles on the finest level. --cycle v starts
+/// the V-cycles from the initial values instead.
+///
 /// Stopping: --rtol stops when the residual ||r||_2 has fallen by that factor from the
-/// start; --tol is the paper's criterion (largest change of phi in an iteration). The
-/// change criterion alone stops slow methods (Jacobi, SOR) far from the answer: their
-/// changes are small long before the error is (see docs/solve.md).
+/// start (the initial values); --tol is the paper's criterion (largest change of phi in
+/// an iteration). The change criterion alone stops slow methods (Jacobi, SOR) far from
+/// the answer: their changes are small long before the error is (see docs/solve.md).
+/// With --cycle fmg, --rtol 0 (and no --tol) stops when the algebraic error is a tenth
+/// of the discretization error (about 15 fine-grid sweeps): phi is then as accurate as
+/// the grid allows, but the tiny values of u in thin parts are not accurate enough for
+/// the trace, which needs the default 1e-6.
 ///
 /// Interrupting (Ctrl-C, SIGTERM) writes a checkpoint and exits with code 130;
 /// `--resume` continues from it and gives the same bytes as an uninterrupted run.
@@ -55,8 +64,12 @@ pub struct SolveArgs {
     /// (the paper's, slow; a reference).
     #[arg(long, value_enum, default_value_t = MethodArg::from(SolveOptions::default().method))]
     pub method: MethodArg,
+    /// Multigrid's start: fmg (full multigrid, then V-cycles) or v (V-cycles from the
+    /// initial values).
+    #[arg(long, value_enum, default_value_t = CycleArg::from(SolveOptions::default().cycle.kind))]
+    pub cycle: CycleArg,
     /// Stop when the relative residual ||r||_2 / ||r_0||_2 is below R, in [0, 1) (0:
-    /// off, with --tol).
+    /// off, with --tol; with --cycle fmg, stop at the discretization error).
     #[arg(long, value_name = "R", default_value_t = SolveOptions::default().rtol)]
     pub rtol: f64,
     /// The paper's zeta: stop when the largest change of an iteration is below it (0:
@@ -99,6 +112,24 @@ impl From<Method> for MethodArg {
     }
 }
 
+/// `--cycle` values.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum CycleArg {
+    /// Full multigrid, then V-cycles.
+    Fmg,
+    /// V-cycles from the initial values.
+    V,
+}
+
+impl From<Cycle> for CycleArg {
+    fn from(c: Cycle) -> Self {
+        match c {
+            Cycle::Fmg => CycleArg::Fmg,
+            Cycle::V => CycleArg::V,
+        }
+    }
+}
+
 impl SolveArgs {
     /// The library options, with the memory budget `mem`.
     #[must_use]
@@ -112,6 +143,13 @@ impl SolveArgs {
             tol: self.tol,
             rtol: self.rtol,
             eps: self.eps,
+            cycle: CycleOptions {
+                kind: match self.cycle {
+                    CycleArg::Fmg => Cycle::Fmg,
+                    CycleArg::V => Cycle::V,
+                },
+                ..CycleOptions::default()
+            },
             max_iter: self.max_iter,
             omega: self.omega,
             mem,

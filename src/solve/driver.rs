@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use super::jacobi::jacobi_pass;
 use super::level::PassStats;
-use super::multigrid::Hierarchy;
+use super::multigrid::{Cycle, Hierarchy, FMG_CYCLES};
 use super::stencil::optimal_omega;
 /// Moved to [`crate::grid::copy_blocks`]; kept here for the callers of the old path.
 pub use crate::grid::copy_blocks;
@@ -55,6 +55,8 @@ pub enum StopReason {
     IterationLimit,
     /// Asked to stop (SIGINT or SIGTERM); a checkpoint holds the state.
     Interrupted,
+    /// Full multigrid's algebraic error fell well below the discretization error.
+    Discretization,
 }
 
 impl StopReason {
@@ -66,6 +68,7 @@ impl StopReason {
             StopReason::MaxChange => "max_change",
             StopReason::IterationLimit => "iteration_limit",
             StopReason::Interrupted => "interrupted",
+            StopReason::Discretization => "discretization",
         }
     }
 }
@@ -86,6 +89,9 @@ pub struct History {
     /// Unknowns (interior voxels).
     #[serde(default)]
     pub unknowns: u64,
+    /// The first iteration was full multigrid's coarse phase.
+    #[serde(default)]
+    pub fmg: bool,
 }
 
 /// What the loop should do after a measurement.
@@ -125,25 +131,73 @@ impl Iteration<'_> {
     pub fn sweeps_per_iteration(&self) -> f64 {
         match self.method {
             Method::Sor | Method::Jacobi => 1.0,
-            Method::Multigrid => {
-                let c = self.h.cycle;
-                let n0 = self.h.levels[0].spec.num_voxels() as f64;
-                let mut w = 0.0;
-                let last = self.h.levels.len() - 1;
-                for (k, l) in self.h.levels.iter().enumerate() {
-                    let r = l.spec.num_voxels() as f64 / n0;
-                    let s = if k == last {
-                        let n = l.spec.shape.iter().copied().max().unwrap_or(2) as f64;
-                        (4.0 * n).max(20.0)
-                    } else {
-                        // Sweeps plus a residual for restriction and a prolongation.
-                        (c.pre + c.post) as f64 + 1.0
-                    };
-                    w += r * s;
-                }
-                w
-            }
+            Method::Multigrid => self.cycle_work(0),
         }
+    }
+
+    /// The share of level `k`'s voxels in the finest level's.
+    fn ratio(&self, k: usize) -> f64 {
+        let n0 = self.h.levels[0].spec.num_voxels() as f64;
+        self.h.levels[k].spec.num_voxels() as f64 / n0
+    }
+
+    /// Work of the coarsest level's relaxation, in its own sweeps.
+    fn coarsest_sweeps(&self) -> f64 {
+        let l = self.h.levels.last().expect("a level");
+        let n = l.spec.shape.iter().copied().max().unwrap_or(2) as f64;
+        (4.0 * n).max(20.0)
+    }
+
+    /// Fine-grid sweep equivalents of a V-cycle on level `k`: on each level its sweeps
+    /// plus one for the residual of the restriction and the prolongation.
+    fn cycle_work(&self, k: usize) -> f64 {
+        let c = self.h.cycle;
+        let last = self.h.levels.len() - 1;
+        (k..=last)
+            .map(|j| {
+                let s = if j == last {
+                    self.coarsest_sweeps()
+                } else {
+                    (c.pre + c.post) as f64 + 1.0
+                };
+                self.ratio(j) * s
+            })
+            .sum()
+    }
+
+    /// Fine-grid sweep equivalents of full multigrid's coarse phase: on the finest
+    /// level the residual of the start, its restriction and the prolongation (2); on
+    /// each coarse level a restriction and a prolongation (1) and [`FMG_CYCLES`]
+    /// V-cycles; the coarsest level's relaxation once more.
+    #[must_use]
+    pub fn fmg_work(&self) -> f64 {
+        let last = self.h.levels.len() - 1;
+        let mut w = 2.0 + self.ratio(last) * self.coarsest_sweeps();
+        for k in 1..last {
+            w += self.ratio(k) + FMG_CYCLES as f64 * self.cycle_work(k);
+        }
+        w
+    }
+
+    /// Fine-grid sweep equivalents of the iterations in `hist`.
+    #[must_use]
+    pub fn work(&self, hist: &History) -> f64 {
+        let per = self.sweeps_per_iteration();
+        if hist.fmg && hist.iterations > 0 {
+            self.fmg_work() + per * (hist.iterations - 1) as f64
+        } else {
+            per * hist.iterations as f64
+        }
+    }
+
+    /// Whether the iteration starts with full multigrid's coarse phase: multigrid with
+    /// `--cycle fmg`, a hierarchy of more than one level, and a fresh history (a resume
+    /// goes on with V-cycles from the checkpoint).
+    fn starts_with_fmg(&self, hist: &History) -> bool {
+        self.method == Method::Multigrid
+            && self.h.cycle.kind == Cycle::Fmg
+            && self.h.levels.len() > 1
+            && hist.residual.is_empty()
     }
 
     /// Run the iteration from `hist` (a fresh history, or one restored from a
@@ -160,6 +214,22 @@ impl Iteration<'_> {
         // and whether this cycle's pre-smoothing is done.
         let mut measured: Option<PassStats> = None;
         let mut pre_done = false;
+        if self.starts_with_fmg(hist) {
+            // The coarse phase is the first iteration: x_0 is the starting state (its
+            // residual is the reference r_0), x_1 full multigrid's result.
+            let (start, change, after) = self.h.fmg_start()?;
+            hist.fmg = true;
+            hist.unknowns = start.count;
+            hist.r0 = start.res_sq.sqrt();
+            if hist.r0 == 0.0 {
+                hist.residual.push(0.0);
+                return Ok(StopReason::Residual);
+            }
+            hist.residual.push(1.0);
+            hist.iterations += 1;
+            hist.max_change.push(change);
+            measured = Some(after);
+        }
         loop {
             let cur = hist.cur;
             // The state's residual: measured by the first pass of the iteration, or (for

@@ -73,7 +73,7 @@ pub mod transfer;
 
 pub use driver::{Method, StopReason};
 pub use error::SolveError;
-pub use multigrid::CycleOptions;
+pub use multigrid::{Cycle, CycleOptions};
 pub use options::SolveOptions;
 pub use polish::{PolishOptions, PolishReport};
 pub use report::SolveReport;

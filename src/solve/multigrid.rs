@@ -20,6 +20,18 @@
 //!    loop decides whether to stop without starting another cycle. The first cycle (and
 //!    the first after a resume) measures its start in pass 1 instead.
 //!
+//! Full multigrid (`--cycle fmg`, the default) first solves the problem itself on the
+//! coarse levels: the fixed values of the starting state are injected down (coarse
+//! node `I` takes fine node `2I`'s value, unknowns 0, right-hand side 0), the coarsest
+//! level is relaxed to convergence, and on each level from coarse to fine the level
+//! below's solution is interpolated up as the start (the correction pass with length 1
+//! and no sweeps, onto the unknowns at 0) and [`FMG_CYCLES`] V-cycles improve it, the
+//! levels under it holding corrections as usual. On the finest level the loop of
+//! [`super::driver`] goes on with V-cycles, each a finest-level iteration as before, so
+//! the residual history, checkpoints and resume are those of V-cycles; only the first
+//! iteration (the coarse phase) differs, and a resume never repeats it. Afterwards the
+//! coarse levels hold corrections again (their fixed values 0).
+//!
 //! The coarsest level (a single block) is relaxed by many sweeps in memory. Every pass
 //! writes only its own blocks and reduces per-block numbers in block order, so the result
 //! is the same bytes for any thread count and budget.
@@ -33,15 +45,43 @@ use std::path::PathBuf;
 
 use super::blocks::BlockLoop;
 use super::coarsen::{coarse_specs, coarsen_mask};
+use super::cuts::is_unknown;
 use super::flat::Flat;
 use super::level::{Change, Level, Measure, PassStats};
 use super::smooth::Smooth;
 use super::stencil::optimal_omega;
 use crate::grid::{scratch, BlockStore, GridError, GridSpec, Residence, Scalar};
 
+/// How multigrid starts (`--cycle`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Cycle {
+    /// Full multigrid: the coarse levels' solutions, each interpolated up as the next
+    /// one's start, then V-cycles on the finest level (to `--rtol`, or with `--rtol 0`
+    /// until the algebraic error is small against the discretization error).
+    #[default]
+    Fmg,
+    /// V-cycles from the starting state until `--rtol`.
+    V,
+}
+
+impl Cycle {
+    /// The name on the command line and in the run's attributes.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Cycle::Fmg => "fmg",
+            Cycle::V => "v",
+        }
+    }
+}
+
 /// Cycle parameters.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct CycleOptions {
+    /// Full multigrid or V-cycles.
+    #[serde(default)]
+    pub kind: Cycle,
     /// Sweeps before the coarse-grid correction.
     pub pre: usize,
     /// Sweeps after it.
@@ -56,6 +96,7 @@ impl Default for CycleOptions {
             pre: 2,
             post: 2,
             coarsest: 12,
+            kind: Cycle::default(),
         }
     }
 }
@@ -86,6 +127,9 @@ impl Scratch {
         scratch(spec, fill, at)
     }
 }
+
+/// V-cycles on each coarse level in full multigrid, after the interpolated start.
+pub const FMG_CYCLES: usize = 1;
 
 /// The multigrid hierarchy.
 pub struct Hierarchy<'d> {
@@ -174,9 +218,15 @@ impl<'d> Hierarchy<'d> {
     /// into 1, measuring the residual of generation 0 when `measure` (the first cycle,
     /// and the first after a resume; later cycles had it measured by the cycle before).
     pub fn pre_smooth_fine(&self, measure: bool) -> Result<PassStats, GridError> {
-        let c = self.cycle;
-        if let Some((f, coarse)) = self.flat(0) {
-            let (res_sq, count) = f.pre(c.pre, measure, &coarse);
+        self.pre_pass(0, self.cycle.pre, measure)
+    }
+
+    /// Pre-smoothing of level `k` from generation 0 into 1 by `sweeps` sweeps (0: a
+    /// copy), with the restriction of the defect into level `k + 1` when it can be
+    /// fused; with `measure`, the residual of generation 0.
+    fn pre_pass(&self, k: usize, sweeps: usize, measure: bool) -> Result<PassStats, GridError> {
+        if let Some((f, coarse)) = self.flat(k) {
+            let (res_sq, count) = f.pre(sweeps, measure, &coarse);
             return Ok(PassStats {
                 res_sq,
                 count,
@@ -189,10 +239,10 @@ impl<'d> Hierarchy<'d> {
             } else {
                 Measure::None
             },
-            restrict_into: self.fused(0),
-            ..Smooth::new(0, 1, c.pre)
+            restrict_into: self.fused(k),
+            ..Smooth::new(0, 1, sweeps)
         };
-        self.levels[0].smooth_pass(&pass, &self.blocks)
+        self.levels[k].smooth_pass(&pass, &self.blocks)
     }
 
     /// The rest of the V-cycle: coarse-grid correction and post-smoothing back into
@@ -203,19 +253,48 @@ impl<'d> Hierarchy<'d> {
     }
 
     fn correct_and_smooth(&self, k: usize) -> Result<(f64, PassStats), GridError> {
-        let (lvl, coarse, blocks) = (&self.levels[k], &self.levels[k + 1], &self.blocks);
-        if self.fused(k).is_none() {
-            lvl.restrict_pass(1, coarse, blocks)?;
-        }
+        self.restrict_unfused(k)?;
         self.cycle_level(k + 1)?;
+        self.post_pass(k, self.cycle.post)
+    }
+
+    /// The restriction of level `k`'s defect (generation 1) into level `k + 1`, when the
+    /// pre-smoothing pass could not do it.
+    fn restrict_unfused(&self, k: usize) -> Result<(), GridError> {
+        if self.fused(k).is_none() {
+            let (lvl, coarse) = (&self.levels[k], &self.levels[k + 1]);
+            lvl.restrict_pass(1, coarse, &self.blocks)?;
+        }
+        Ok(())
+    }
+
+    /// Generation 0 of level `k` = generation 1 plus the interpolated correction of
+    /// level `k + 1` (at its best step length), after `sweeps` sweeps. On the finest
+    /// level, the largest change against generation 0's old content and the residual of
+    /// the result are measured.
+    fn post_pass(&self, k: usize, sweeps: usize) -> Result<(f64, PassStats), GridError> {
+        self.post_pass_with(k, sweeps, None)
+    }
+
+    /// [`Self::post_pass`] with the correction's length `alpha` (`None`: the best).
+    fn post_pass_with(
+        &self,
+        k: usize,
+        sweeps: usize,
+        alpha: Option<f64>,
+    ) -> Result<(f64, PassStats), GridError> {
+        let (lvl, coarse, blocks) = (&self.levels[k], &self.levels[k + 1], &self.blocks);
         let (change, measure) = if k == 0 {
             (Change::Dst, Measure::After)
         } else {
             (Change::None, Measure::None)
         };
-        let alpha = lvl.step_length(coarse, blocks)?;
+        let alpha = match alpha {
+            Some(a) => a,
+            None => lvl.step_length(coarse, blocks)?,
+        };
         if let Some((f, c)) = self.flat(k) {
-            let (max_change, (res_sq, count)) = f.post(self.cycle.post, &c, alpha, k == 0, k == 0);
+            let (max_change, (res_sq, count)) = f.post(sweeps, &c, alpha, k == 0, k == 0);
             let st = PassStats {
                 res_sq,
                 count,
@@ -227,10 +306,78 @@ impl<'d> Hierarchy<'d> {
             coarse: Some((coarse, alpha)),
             measure,
             change,
-            ..Smooth::new(1, 0, self.cycle.post)
+            ..Smooth::new(1, 0, sweeps)
         };
         let post = lvl.smooth_pass(&pass, blocks)?;
         Ok((post.max_change, post))
+    }
+
+    /// Full multigrid's coarse phase, from the starting state in generation 0 of the
+    /// finest level (see the module docs). Returns the residual of the starting state,
+    /// and the largest change and the residual of the result (in generation 0).
+    pub fn fmg_start(&self) -> Result<(PassStats, f64, PassStats), GridError> {
+        // The residual of the start, and generation 1 = generation 0 (the fused
+        // restriction it may do is undone below).
+        let start = self.pre_pass(0, 0, true)?;
+        for k in 0..self.levels.len() - 1 {
+            self.inject(k)?;
+        }
+        let last = self.levels.len() - 1;
+        self.cycle_level(last)?;
+        for k in (1..last).rev() {
+            self.post_pass_with(k, 0, Some(1.0))?;
+            // The levels below hold corrections from here on: their generation 1 must
+            // not keep the fixed values injected into it.
+            for l in &self.levels[k + 1..] {
+                l.flat.state_replaced();
+            }
+            for _ in 0..FMG_CYCLES {
+                self.cycle_level(k)?;
+            }
+        }
+        let (change, after) = self.post_pass_with(0, 0, Some(1.0))?;
+        // The coarse levels go back to holding corrections (zero on their fixed nodes,
+        // which their next pre-smoothing copies whole).
+        for l in &self.levels[1..] {
+            l.flat.state_replaced();
+        }
+        Ok((start, change, after))
+    }
+
+    /// The problem on level `k + 1` from level `k`'s: the fixed values of generation 0
+    /// at the nodes under them (injection; NaN outside the domain becomes 0), the
+    /// unknowns 0, into both generations, and a zero right-hand side.
+    fn inject(&self, k: usize) -> Result<(), GridError> {
+        let (fine, coarse) = (&self.levels[k], &self.levels[k + 1]);
+        let spec = &coarse.spec;
+        let rhs = coarse
+            .f
+            .as_ref()
+            .expect("coarse levels have a right-hand side");
+        self.blocks.each(spec, |cb| {
+            let cs = spec.block_start(cb).map(|c| 2 * c as i64);
+            let csh = spec.block_shape(cb).map(|c| c as usize);
+            let above = fine.u[0].read_region(cs, csh.map(|c| 2 * c - 1), 0.0)?;
+            let mask = coarse.mask.read_block(cb)?;
+            let mut out = Vec::with_capacity(mask.len());
+            for z in 0..csh[0] {
+                for y in 0..csh[1] {
+                    for x in 0..csh[2] {
+                        let v = above.data[above.offset(2 * z, 2 * y, 2 * x)];
+                        let unknown = is_unknown(mask[out.len()]);
+                        out.push(if unknown || v.is_nan() { 0.0 } else { v });
+                    }
+                }
+            }
+            coarse.u[0].write_block(cb, &out)?;
+            coarse.u[1].write_block(cb, &out)?;
+            rhs.write_block(cb, &vec![0.0; out.len()])
+        })?;
+        for name in ["u0", "u1", "f"] {
+            self.blocks.exchange(&coarse.field(name), coarse.halo)?;
+        }
+        coarse.flat.state_replaced();
+        Ok(())
     }
 
     /// A V-cycle on coarse level `k`, from its generation 0 (zero) back into it.
@@ -246,15 +393,7 @@ impl<'d> Hierarchy<'d> {
             lvl.smooth_pass(&pass, &self.blocks)?;
             return Ok(());
         }
-        if let Some((f, c)) = self.flat(k) {
-            f.pre(self.cycle.pre, false, &c);
-            return self.correct_and_smooth(k).map(|_| ());
-        }
-        let pass = Smooth {
-            restrict_into: self.fused(k),
-            ..Smooth::new(0, 1, self.cycle.pre)
-        };
-        lvl.smooth_pass(&pass, &self.blocks)?;
+        self.pre_pass(k, self.cycle.pre, false)?;
         self.correct_and_smooth(k)?;
         Ok(())
     }

@@ -3,7 +3,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::driver::Method;
-use super::multigrid::CycleOptions;
+use super::multigrid::{Cycle, CycleOptions};
 use super::polish::PolishOptions;
 use crate::grid::MemBudget;
 
@@ -15,7 +15,8 @@ pub struct SolveOptions {
     /// The paper's zeta: stop when the largest change of an iteration is below it (0:
     /// off).
     pub tol: f64,
-    /// Stop when `||r||_2 / ||r_0||_2` is below it (0: off).
+    /// Stop when `||r||_2 / ||r_0||_2` is below it (0: off; full multigrid then stops
+    /// at the discretization error, see [`SolveOptions::stops_at_discretization`]).
     pub rtol: f64,
     /// Spacing of the exterior layers' values `1 + k eps`.
     pub eps: f64,
@@ -36,6 +37,17 @@ pub struct SolveOptions {
     /// Continue from the last checkpoint.
     #[serde(skip)]
     pub resume: bool,
+}
+
+impl SolveOptions {
+    /// Whether the solve stops on the discretization criterion: full multigrid with
+    /// `--rtol 0` (phi within the discretization error, in about 15 fine-grid sweeps;
+    /// not the relative accuracy of tiny values the trace needs, which the default
+    /// residual target gives).
+    #[must_use]
+    pub fn stops_at_discretization(&self) -> bool {
+        self.method == Method::Multigrid && self.cycle.kind == Cycle::Fmg && self.rtol == 0.0
+    }
 }
 
 impl Default for SolveOptions {

@@ -101,7 +101,7 @@ pub fn solve_with(
         max_change_history: hist.max_change.clone(),
         unknowns: hist.unknowns,
         levels: setup.levels,
-        sweep_equivalents: it.sweeps_per_iteration() * hist.iterations as f64,
+        sweep_equivalents: it.work(&hist),
         resumed_at,
         checkpoints: ck.written,
         workers: h.blocks.workers,
@@ -137,7 +137,10 @@ fn check_options(opts: &SolveOptions) -> Result<(), crate::Error> {
             opts.eps
         )));
     }
-    if !(opts.rtol >= 0.0 && opts.tol >= 0.0) || (opts.rtol == 0.0 && opts.tol == 0.0) {
+    let rtol = opts.rtol;
+    if !(rtol >= 0.0 && opts.tol >= 0.0)
+        || (rtol == 0.0 && opts.tol == 0.0 && !opts.stops_at_discretization())
+    {
         return Err(options(
             "give a positive --rtol or --tol (both 0 would never stop)".into(),
         ));
@@ -282,8 +285,11 @@ fn start(
 /// request to stop (`interrupted`).
 fn decide(opts: &SolveOptions, hs: &History, stop: &AtomicBool) -> Decision {
     let rel = *hs.residual.last().unwrap_or(&1.0);
-    if opts.rtol > 0.0 && rel < opts.rtol {
+    let rtol = opts.rtol;
+    if rtol > 0.0 && rel < rtol {
         Decision::Stop(StopReason::Residual)
+    } else if opts.stops_at_discretization() && discretization_reached(hs) {
+        Decision::Stop(StopReason::Discretization)
     } else if opts.tol > 0.0 && hs.max_change.last().is_some_and(|&c| c < opts.tol) {
         Decision::Stop(StopReason::MaxChange)
     } else if hs.iterations >= opts.max_iter {
@@ -293,6 +299,43 @@ fn decide(opts: &SolveOptions, hs: &History, stop: &AtomicBool) -> Decision {
     } else {
         Decision::Continue
     }
+}
+
+/// Full multigrid's stop: the algebraic error is small against the discretization
+/// error.
+///
+/// The first V-cycle on the finest level (`max_change[1]`; `max_change[0]` is the
+/// coarse phase) moves the interpolated solution of the level below to this level's:
+/// its largest change `d1` is the difference of the two finest levels' solutions, about
+/// three times the finest level's discretization error for a second-order scheme. Later
+/// cycles change the iterate by `d` at a rate `rho = d / d_prev`, which leaves an
+/// algebraic error of about `d rho / (1 - rho)`; the solve stops when that is below a
+/// tenth of the discretization error, `d1 / 30`.
+///
+/// The trace needs more where u is tiny: the polish ([`super::polish`]) gives the
+/// values below its threshold relative accuracy only when the values around them are
+/// right to well within it, which the default residual target (1e-6) gives and this
+/// criterion does not.
+#[must_use]
+pub fn discretization_reached(hs: &History) -> bool {
+    match algebraic_error(hs) {
+        Some(e) => e <= hs.max_change[1] / 30.0,
+        None => false,
+    }
+}
+
+/// The algebraic error (largest, over the unknowns) that full multigrid's V-cycles
+/// leave, `d rho / (1 - rho)` from the last two cycles' largest changes; `None` before
+/// two V-cycles on the finest level, or when they do not converge.
+#[must_use]
+pub fn algebraic_error(hs: &History) -> Option<f64> {
+    let c = &hs.max_change;
+    if !hs.fmg || c.len() < 3 {
+        return None;
+    }
+    let (prev, d) = (c[c.len() - 2], c[c.len() - 1]);
+    let rho = d / prev;
+    (rho < 1.0).then(|| d * rho / (1.0 - rho))
 }
 
 /// Show the residual, its rate of decrease, and the iterations still needed at that
