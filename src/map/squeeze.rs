@@ -20,7 +20,7 @@ use super::upwind::is_set;
 /// to r = 333.
 pub const SQUEEZE_BELOW: f64 = 0.003;
 
-/// Whether sigma_2 of the direction field `d` at voxel `i` (as [`sigma2`]) is at least
+/// Whether sigma_2 of the direction field `d` at voxel `i` (as `sigma2` in the tests) is at least
 /// `tau`, without the eigenvalues: the Gram matrix less tau^2 has at least two positive
 /// eigenvalues, counted (its roots being real) by the sign changes of its
 /// characteristic polynomial's coefficients. False where voxel `i` has no direction.
@@ -51,7 +51,7 @@ pub fn turns_at_least(d: &[[f32; 3]], i: usize, strides: [usize; 3], tau: f64) -
     changes >= 2
 }
 
-/// The Jacobian's columns at voxel `i` of `d` (see [`sigma2`]); None where it has no
+/// The Jacobian's columns at voxel `i` of `d` (see `sigma2` in the tests); None where it has no
 /// direction.
 #[inline]
 #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)

@@ -248,6 +248,12 @@ const MAX_ROUNDS: usize = 12;
 /// `--mem`.
 const WHOLE_GRID_VOXELS: u64 = 1 << 23;
 
+/// The largest grid the repair takes whole when the windows and the larger closings
+/// leave handles (on larger grids that is a refusal): 32 Mi voxels, 768 MiB at
+/// [`repair::BYTES_PER_VOXEL`], refused with "give more --mem" when `--mem` leaves less.
+/// Fixed, so that the result never depends on `--mem`: it is this repair or a refusal.
+const WHOLE_GRID_FALLBACK_VOXELS: u64 = 1 << 25;
+
 /// What the repair has changed so far.
 #[derive(Default)]
 struct Tally {
@@ -476,7 +482,12 @@ fn run_repair(
     let t = Instant::now();
     let mut tally = Tally::default();
     let mut probe = probe_radius(env);
+    let first_probe = probe;
     let max_probe = probe.max(8) * 8;
+    // The largest closing tried, and the one that did not fit in --mem if that ended
+    // the ladder.
+    let mut tried = probe;
+    let mut too_big: Option<(u32, String)> = None;
     // A grid this small is repaired whole when windows around the voxel-scale handles
     // leave some; a larger one tries larger closings and windows first.
     let whole_grid = env.spec.num_voxels() <= WHOLE_GRID_VOXELS;
@@ -488,7 +499,19 @@ fn run_repair(
         if chi == 1 {
             break;
         }
-        let removed = round(env, closing_grid, probe, &mut windowed, &mut history)?;
+        let removed = match round(env, closing_grid, probe, &mut windowed, &mut history) {
+            Ok(n) => n,
+            // A closing larger than the first that does not fit in --mem ends the
+            // ladder: the refusal below says what is left, not that the budget is short.
+            Err(crate::Error::Grid(crate::grid::GridError::Budget { needed, .. }))
+                if probe > first_probe =>
+            {
+                too_big = Some((probe, needed));
+                break;
+            }
+            Err(e) => return Err(e),
+        };
+        tried = probe;
         chi = euler::euler_characteristic(env.solid, env.w_ccl)?;
         if removed == 0 {
             if whole_grid {
@@ -504,13 +527,19 @@ fn run_repair(
     if chi != 1 {
         // Handles the windows did not remove: the whole grid, when it fits.
         let need = env.spec.num_voxels() * repair::BYTES_PER_VOXEL;
-        if !whole_grid {
+        if env.spec.num_voxels() > WHOLE_GRID_FALLBACK_VOXELS {
+            let budget = too_big.as_ref().map_or(String::new(), |(r, needed)| {
+                format!(
+                    " (a closing by {r} voxels would need {needed}, more than --mem {})",
+                    env.opts.mem
+                )
+            });
             return Err(VoxelizeError::Topology(format!(
-                "{}: the voxel solid has {ncomp} piece(s) and genus {genus}; the repair in windows around the handles (found by closings of up to {max_probe} voxels) left genus {}: tunnels too wide for a local repair, on a grid of {} voxels, more than the {} the repair takes whole; use --close VOXELS, a coarser grid, or --topology strict / --allow-genus",
+                "{}: the voxel solid has {ncomp} piece(s) and genus {genus}; the repair in windows around the handles (found by closings of up to {tried} voxels{budget}) left genus {}: tunnels too wide for a local repair, on a grid of {} voxels, more than the {} the repair takes whole; use --close VOXELS, a coarser grid, or --topology strict / --allow-genus",
                 env.source_name,
                 1 - chi,
                 env.spec.num_voxels(),
-                WHOLE_GRID_VOXELS
+                WHOLE_GRID_FALLBACK_VOXELS
             ))
             .into());
         }
