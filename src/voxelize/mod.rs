@@ -31,6 +31,7 @@ mod probe_band;
 mod probes;
 mod repair;
 mod report;
+mod rounds;
 mod scanline;
 pub mod simple;
 pub mod solvent;
