@@ -4,7 +4,7 @@
     python3 -m venv /tmp/cmpvenv
     /tmp/cmpvenv/bin/pip install numpy scipy pyamg 'zarr>=3'      # a C compiler: cc
     /tmp/cmpvenv/bin/python benches/compare_solve.py RUN [--harmap target/release/harmap]
-        [--repeat 3] [--rtol 1e-6] [--eps 1e-4] [--json out.json]
+        [--repeat 3] [--rtol 1e-6] [--eps 1e-4] [--json out.json] [--hypre]
 
 RUN is a harmap run directory (Zarr v3 group) with RUN/labels/0, e.g. from
 `harmap voxelize ... -o RUN`. With --harmap BIN, `BIN solve RUN` runs --repeat times,
@@ -38,6 +38,26 @@ The peers, each in its own process, which reports its own peak RSS (VmHWM):
     residual checked every --check-every iterations (1, as harmap does). Same colors and
     omega as harmap's red-black SOR; the update is written differently, so the iterates
     agree to rounding, not bit for bit.
+
+  * hypre (with --hypre): benches/compare_hypre.c, PFMG-preconditioned CG through
+    hypre's Struct interface on --hypre-ranks MPI ranks (default 2, one thread each),
+    each rank a slab of z planes. Every fixed voxel is an identity row, its value moved
+    to its unknown neighbours' right-hand side (a symmetric matrix, as CG needs); label
+    0 voxels are identity rows too (Struct grids are boxes). It solves for the
+    correction from x0, so hypre's relative residual is exactly ||b - A x|| / ||b - A
+    x0||. PFMG: one V(1,1) cycle per CG iteration, --hypre-relax (default 2, symmetric
+    red-black Gauss-Seidel), --hypre-rap (default 1, the non-Galerkin 7-point coarse
+    operators), skip-relax on: the fastest and leanest of the four relax/RAP pairs at
+    N = 256 here. Setup is hypre's grid, matrix and vector assembly plus the PCG and
+    PFMG setup; peak RSS is the sum of the ranks' VmHWM (each rank's is in the JSON).
+    Debian: `apt-get install libhypre-dev`. Debian's hypre is built against Open MPI,
+    so it is compiled with mpicc.openmpi and run with mpirun.openmpi (as root with
+    OMPI_ALLOW_RUN_AS_ROOT=1 and OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1, set here); the script
+    finds them from the MPI library libHYPRE.so links to (--mpicc and --mpiexec
+    override). Installing libhypre-dev also switches Debian's `mpi` and `mpirun`
+    alternatives to Open MPI when MPICH is installed: harmap's `mpi` feature wants
+    MPICH (`update-alternatives --set mpi /usr/bin/mpicc.mpich` and `--set mpirun
+    /usr/bin/mpirun.mpich` switch them back).
 
 Reported per peer: setup, solve and total seconds (timed inside the process; the
 process's wall time, with reading the labels and writing phi, is shown too), iterations,
@@ -279,6 +299,39 @@ def compile_sor(cc: str, tmp: Path) -> tuple[Path, list[str]]:
     sys.exit("error: cannot compile benches/sor.c:\n" + "\n".join(errors))
 
 
+def hypre_mpi(a) -> tuple[str, str]:
+    """The MPI compiler wrapper and launcher that match the MPI libHYPRE.so links to."""
+    if a.mpicc and a.mpiexec:
+        return a.mpicc, a.mpiexec
+    flavour = None
+    for lib in ("/usr/lib/x86_64-linux-gnu/libHYPRE.so", "/usr/lib/aarch64-linux-gnu/libHYPRE.so",
+                "/usr/local/lib/libHYPRE.so"):
+        if Path(lib).exists():
+            out = subprocess.run(["ldd", lib], capture_output=True, text=True).stdout
+            flavour = "openmpi" if "libmpi.so.40" in out else "mpich" if "libmpi.so.12" in out else None
+            break
+    cc = {"openmpi": "mpicc.openmpi", "mpich": "mpicc.mpich"}.get(flavour, "mpicc")
+    run = {"openmpi": "mpirun.openmpi", "mpich": "mpiexec.mpich"}.get(flavour, "mpiexec")
+    cc, run = a.mpicc or cc, a.mpiexec or run
+    if shutil.which(cc) is None or shutil.which(run) is None:
+        sys.exit(f"error: --hypre needs {cc} and {run} (Debian: apt-get install libhypre-dev); "
+                 "or name them with --mpicc and --mpiexec")
+    return cc, run
+
+
+def compile_hypre(a, tmp: Path) -> tuple[Path, str, list[str]]:
+    src = Path(__file__).resolve().parent / "compare_hypre.c"
+    exe = tmp / "compare_hypre"
+    cc, run = hypre_mpi(a)
+    flags = ["-O3", "-march=native"]
+    cmd = [cc, *flags, "-I/usr/include/hypre", str(src), "-o", str(exe), "-lHYPRE", "-lm"]
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    if p.returncode != 0:
+        sys.exit(f"error: cannot compile benches/compare_hypre.c (is libhypre-dev installed?):\n"
+                 f"$ {' '.join(cmd)}\n{p.stderr}")
+    return exe, run, [cc, *flags]
+
+
 def thread_env(threads: int) -> dict:
     env = dict(os.environ)
     for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -312,6 +365,8 @@ def run_peers(a, labels_path: Path, shape, tmp: Path, report: dict) -> dict[str,
     runs: dict[str, list[dict]] = {}
     if "sor" not in a.skip:
         exe, flags = compile_sor(a.cc, tmp)
+    if a.hypre:
+        hexe, hrun, hflags = compile_hypre(a, tmp)
     for rep in range(a.repeat):
         tag = f" (run {rep + 1} of {a.repeat})" if a.repeat > 1 else ""
         if "pyamg" not in a.skip:
@@ -343,6 +398,18 @@ def run_peers(a, labels_path: Path, shape, tmp: Path, report: dict) -> dict[str,
                 "iterations": r["iterations"], "peak_rss": r["peak_rss"], "rel_residual": r["rel_residual"],
                 "converged": r["converged"], "residual_check_s": r["residual_check_s"],
                 "process_wall_s": wall, "file": "phi_sor.f64"})
+        if a.hypre:
+            print(f"hypre: PFMG-CG on {a.hypre_ranks} ranks ({hrun}){tag} ...", flush=True)
+            henv = thread_env(1) | {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1"}
+            cmd = [hrun, "-n", str(a.hypre_ranks), str(hexe), str(labels_path), *map(str, shape), repr(a.eps),
+                   repr(a.rtol), str(tmp / "phi_hypre.f64"), str(a.hypre_relax), str(a.hypre_rap), "1"]
+            out, wall = run_child(cmd, henv, tmp / "hypre.log")
+            r = json.loads(out.strip().splitlines()[-1])
+            report["hypre"] = r | {"compiler": hflags, "launcher": hrun}
+            runs.setdefault(f"hypre PFMG-CG {a.hypre_ranks}r", []).append({
+                "setup_s": r["setup_s"], "solve_s": r["solve_s"], "total_s": r["setup_s"] + r["solve_s"],
+                "iterations": r["iterations"], "peak_rss": r["peak_rss"], "rel_residual": r["rel_residual"],
+                "converged": r["converged"], "process_wall_s": wall, "file": "phi_hypre.f64"})
         if a.harmap:
             print(f"harmap: {a.harmap} solve{tag} ...", flush=True)
             runs.setdefault("harmap", []).append(run_harmap(a, env, tmp))
@@ -396,6 +463,15 @@ def main() -> int:
     ap.add_argument("--ref-rtol", type=float, default=1e-11,
                     help="pyamg also solves to this relative residual (CG, untimed) as the reference each peer's "
                          "phi is compared to (0: no reference; default 1e-11)")
+    ap.add_argument("--hypre", action="store_true",
+                    help="also run hypre's PFMG-CG (benches/compare_hypre.c; Debian: libhypre-dev)")
+    ap.add_argument("--hypre-ranks", type=int, default=2, help="hypre: MPI ranks (default 2)")
+    ap.add_argument("--hypre-relax", type=int, default=2,
+                    help="hypre PFMG relaxation: 1 weighted Jacobi, 2 symmetric red-black GS (default 2)")
+    ap.add_argument("--hypre-rap", type=int, default=1,
+                    help="hypre PFMG coarse operators: 0 Galerkin, 1 non-Galerkin 7-point (default 1)")
+    ap.add_argument("--mpicc", help="hypre: MPI compiler wrapper (default: the one matching libHYPRE.so)")
+    ap.add_argument("--mpiexec", help="hypre: MPI launcher (default: the one matching libHYPRE.so)")
     ap.add_argument("--skip", choices=["pyamg", "sor"], action="append", default=[], help="skip a peer")
     ap.add_argument("--repeat", type=int, default=1,
                     help="run every peer this many times, interleaved, and report the run of median total time "
@@ -533,6 +609,12 @@ def print_table(peers: dict, report: dict) -> None:
               f"{w['operator_complexity']:.2f}; the two solves share one setup in one process, peak RSS is "
               f"the process's up to the end of that solve; tol = {w['pyamg_tol']:.3g} "
               f"(= rtol ||b-Ax0|| / ||b||, ||b|| = {w['norm_b']:.4g}).")
+    if "hypre" in report:
+        h = report["hypre"]
+        print(f"hypre {h['hypre']}: PFMG-CG on {h['ranks']} ranks ({h['launcher']}), relax type {h['relax_type']}, "
+              f"RAP type {h['rap_type']}, skip-relax {h['skip_relax']}; peak = the sum of the ranks' VmHWM "
+              f"({', '.join(mib(x) for x in h['peak_rss_ranks'])} MiB); its time excludes reading labels and "
+              f"writing phi.")
     if "sor" in report:
         s, r = report["sor"], peers["SOR red-black (C)"]
         print(f"SOR: omega {s['omega']:.6f}, {s['threads']} threads ({' '.join(s['flags'])}), residual checked "
