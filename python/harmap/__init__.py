@@ -610,9 +610,13 @@ def inverse(run, phi, theta, psi, *, mem="1GiB", progress=True):
     return pts.reshape(shape + (3,)), status
 
 
-def export(run, dest, format, *, field=None, sample=None, mem="1GiB", progress=True):  # noqa: A002
+def export(run, dest, format, *, field=None, sample=None, mem="1GiB", force=False, progress=True):  # noqa: A002
     """Export (``harmap export``): format "csv", "obj-sphere", "vtk-streamlines",
-    "nifti", "vti", "dx" or "ome-zarr"; returns the count the command prints."""
+    "nifti", "vti", "dx" or "ome-zarr"; returns the count the command prints.
+
+    As the command, it refuses (ValueError) an existing ``dest`` that is not its own
+    earlier output of the same format, and anything inside a run directory, unless
+    ``force=True``; even then it never deletes a run or a folder it did not write."""
     with _Bars(progress) as bars:
         return _harmap.export(
             os.fspath(run),
@@ -621,6 +625,7 @@ def export(run, dest, format, *, field=None, sample=None, mem="1GiB", progress=T
             field=field,
             sample=sample,
             mem=_mem(mem),
+            force=force,
             progress=bars,
         )
 

@@ -130,6 +130,7 @@ def export(
     field: Optional[Literal["phi", "theta", "psi", "labels"]] = None,
     sample: Optional[int] = None,
     mem: Mem = "1GiB",
+    force: bool = False,
     progress: bool = True,
 ) -> int: ...
 def atlas(

@@ -835,7 +835,7 @@ fn report_page(py: Python<'_>, run: PathBuf, dest: PathBuf) -> PyResult<()> {
 /// Export, as `harmap export`: format csv, obj-sphere, vtk-streamlines, nifti, vti, dx
 /// or ome-zarr; `field` for the image formats.
 #[pyfunction]
-#[pyo3(signature = (run, dest, format, *, field=None, sample=None, mem="1GiB", progress=None))]
+#[pyo3(signature = (run, dest, format, *, field=None, sample=None, mem="1GiB", force=false, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn export(
     py: Python<'_>,
@@ -845,9 +845,11 @@ fn export(
     field: Option<&str>,
     sample: Option<u64>,
     mem: &str,
+    force: bool,
     progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<u64> {
     use harmap::export::image::{export_image, export_ome_zarr, Field, ImageFormat};
+    use harmap::export::{check_target, ExportKind};
     let r = open(py, &run)?;
     let mem = mem_budget(mem)?;
     let image = matches!(format, "nifti" | "vti" | "dx" | "ome-zarr");
@@ -884,6 +886,16 @@ fn export(
             )))
         }
     };
+    // The command's rule: never destroy what this export did not create (an existing
+    // path that is not its own earlier output, anything inside a run) unless `force`.
+    let kind = match (format, fmt) {
+        ("csv", _) => ExportKind::Csv,
+        ("obj-sphere", _) => ExportKind::ObjSphere,
+        ("vtk-streamlines", _) => ExportKind::VtkStreamlines,
+        (_, Some(f)) => ExportKind::Image(f),
+        (_, None) => ExportKind::OmeZarr,
+    };
+    check_target(&dest, kind, force).map_err(|e| harmap_err(py, &harmap::Error::from(e)))?;
     let res = detached(py, progress.as_ref(), |p| match (format, fmt) {
         ("csv", _) => harmap::export::seeds_csv(&r, &dest),
         ("obj-sphere", _) => harmap::export::obj_sphere(&r, &dest),

@@ -157,3 +157,34 @@ def test_import_and_open_take_under_0_2_s(spot_runs):
         for _ in range(3)
     )
     assert best < 0.2, f"import + open took {best:.3f} s"
+
+
+def test_export_never_destroys_what_it_did_not_write(spot_runs, tmp_path):
+    """The command's rule holds for the function: a user's file, a non-empty folder and
+    the run itself are refused (a user's file is replaced only with force=True), and the
+    refused targets are left as they were."""
+    run = spot_runs / "path.harmap"
+    mine = tmp_path / "notes.txt"
+    mine.write_text("a user's notes\n")
+    folder = tmp_path / "documents"
+    folder.mkdir()
+    (folder / "thesis.tex").write_text("\\documentclass{article}\n")
+    meta = (run / "zarr.json").read_bytes()
+    for dest, fmt in [(mine, "csv"), (folder, "ome-zarr"), (run, "ome-zarr"), (run / "zarr.json", "nifti")]:
+        with pytest.raises(harmap.HarmapError) as e:
+            harmap.export(run, dest, fmt, progress=False)
+        assert str(dest) in str(e.value), e.value
+    assert mine.read_text() == "a user's notes\n"
+    assert (folder / "thesis.tex").exists()
+    assert (run / "zarr.json").read_bytes() == meta
+    # force=True replaces a user's file, never a non-empty folder or a run.
+    assert harmap.export(run, mine, "csv", force=True, progress=False) > 0
+    cli("export", run, "--format", "csv", "-o", tmp_path / "cli.csv")
+    assert mine.read_bytes() == (tmp_path / "cli.csv").read_bytes()
+    for dest in (folder, run):
+        with pytest.raises(harmap.HarmapError):
+            harmap.export(run, dest, "ome-zarr", force=True, progress=False)
+    assert (folder / "thesis.tex").exists()
+    assert (run / "zarr.json").read_bytes() == meta
+    # Its own earlier output is replaced without force.
+    assert harmap.export(run, mine, "csv", progress=False) > 0
