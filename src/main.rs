@@ -4,7 +4,25 @@ mod cli;
 
 fn main() -> std::process::ExitCode {
     tune_malloc();
+    // Under mpiexec (the `mpi` feature), MPI runs until the command is done.
+    #[cfg(feature = "mpi")]
+    let _mpi = launched_by_mpi().then(harmap::grid::mpi::init).flatten();
     cli::main()
+}
+
+/// Whether a process manager started this process as an MPI rank (MPICH's and Slurm's
+/// PMI, PMIx, Open MPI), or `HARMAP_MPI=1` asks for MPI.
+#[cfg(feature = "mpi")]
+fn launched_by_mpi() -> bool {
+    [
+        "PMI_RANK",
+        "PMI_SIZE",
+        "PMIX_RANK",
+        "OMPI_COMM_WORLD_SIZE",
+        "HARMAP_MPI",
+    ]
+    .iter()
+    .any(|v| std::env::var_os(v).is_some())
 }
 
 /// Block visits (the map's, the trace's tiles) allocate buffers of several MiB and free

@@ -8,6 +8,8 @@ mod interop;
 mod map;
 mod meshes;
 mod molecules;
+#[cfg(feature = "mpi")]
+mod mpi;
 mod pipeline;
 mod reliability;
 mod report;

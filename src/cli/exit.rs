@@ -71,3 +71,16 @@ pub fn shell_words(args: &[String]) -> String {
         .collect::<Vec<_>>()
         .join(" ")
 }
+
+/// On MPI ranks (the `mpi` feature, more than one rank): a failed rank says so and ends
+/// the job on every rank with `code` (MPI_Abort), so that no rank waits for it forever.
+/// Otherwise nothing.
+pub(super) fn end_ranks(msg: &str, code: u8) {
+    #[cfg(feature = "mpi")]
+    if harmap::grid::world().parts() > 1 {
+        eprintln!("rank {}: {msg}", harmap::grid::world().part());
+        harmap::grid::mpi::abort(i32::from(code));
+    }
+    #[cfg(not(feature = "mpi"))]
+    let _ = (msg, code);
+}

@@ -137,8 +137,10 @@ pub fn main() -> ExitCode {
             for cause in e.chain().skip(1) {
                 let _ = write!(msg, "\n  caused by: {cause}");
             }
+            let code = exit_code(&e);
+            exit::end_ranks(&msg, code);
             eprintln!("{msg}");
-            ExitCode::from(exit_code(&e))
+            ExitCode::from(code)
         }
     }
 }
@@ -157,15 +159,17 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             .num_threads(n)
             .build_global()?;
     }
+    // On MPI ranks only rank 0 speaks; the others report errors only.
+    let other_rank = harmap::grid::world().part() != 0;
     let global = Global {
-        verbosity: if cli.quiet {
+        verbosity: if cli.quiet || other_rank {
             0
         } else if cli.verbose {
             2
         } else {
             1
         },
-        progress: cli.progress,
+        progress: [cli.progress, ProgressMode::Never][usize::from(other_rank)],
     };
     match cli.command {
         Command::Run(a) => run::run(&a, &global),

@@ -18,8 +18,113 @@
 //!   partial sums gathered from every part and added in that order give the same bytes
 //!   for any number of parts ([`Decomposition::reduce_in_block_order`]).
 
-use crate::grid::{GridError, GridSpec};
-use crate::math::Idx3;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::OnceLock;
+
+use crate::grid::{BlockStore, GridError, GridSpec, Scalar};
+use crate::math::{volume, Idx3};
+
+/// A field's blocks as bytes, whatever its element type: what a halo exchange sends
+/// and receives ([`Decomposition::exchange`]).
+pub trait HaloData {
+    /// The field's grid.
+    fn spec(&self) -> &GridSpec;
+    /// Bytes of one element.
+    fn elem_bytes(&self) -> usize;
+    /// Append block `b`'s values, as bytes, to `out`.
+    fn block_bytes(&self, b: Idx3, out: &mut Vec<u8>) -> Result<(), GridError>;
+    /// Write block `b` from its bytes.
+    fn put_block_bytes(&self, b: Idx3, bytes: &[u8]) -> Result<(), GridError>;
+}
+
+/// A [`BlockStore`] seen as [`HaloData`].
+pub struct Field<'a, T: Scalar>(pub &'a dyn BlockStore<T>);
+
+impl<T: Scalar> HaloData for Field<'_, T> {
+    fn spec(&self) -> &GridSpec {
+        self.0.spec()
+    }
+
+    fn elem_bytes(&self) -> usize {
+        std::mem::size_of::<T>()
+    }
+
+    fn block_bytes(&self, b: Idx3, out: &mut Vec<u8>) -> Result<(), GridError> {
+        out.extend_from_slice(bytemuck::cast_slice(&self.0.read_block(b)?));
+        Ok(())
+    }
+
+    fn put_block_bytes(&self, b: Idx3, bytes: &[u8]) -> Result<(), GridError> {
+        self.0
+            .write_block(b, &bytemuck::pod_collect_to_vec::<u8, T>(bytes))
+    }
+}
+
+/// The block layers (along z) within `halo` voxels of the layers `own` that `own` does
+/// not hold: what a part owning `own` reads of its neighbours' blocks. None when it
+/// owns none.
+#[must_use]
+pub fn halo_layers(spec: &GridSpec, own: &std::ops::Range<u64>, halo: u64) -> Vec<u64> {
+    if own.is_empty() {
+        return Vec::new();
+    }
+    let start = |l: u64| spec.block_start([l, 0, 0])[0];
+    let end = |l: u64| start(l) + spec.block_shape([l, 0, 0])[0];
+    let lo = start(own.start).saturating_sub(halo);
+    let hi = end(own.end - 1) + halo;
+    (0..spec.blocks()[0])
+        .filter(|l| !own.contains(l) && end(*l) > lo && start(*l) < hi)
+        .collect()
+}
+
+/// Bytes of the blocks of layers `layers` of `spec`, `elem` bytes a value.
+#[must_use]
+pub fn layer_bytes(spec: &GridSpec, layers: &[u64], elem: usize) -> u64 {
+    let nb = spec.blocks();
+    let mut n = 0;
+    for &l in layers {
+        for y in 0..nb[1] {
+            for x in 0..nb[2] {
+                n += volume(spec.block_shape([l, y, x]));
+            }
+        }
+    }
+    n * elem as u64
+}
+
+static WORLD: OnceLock<Box<dyn Decomposition>> = OnceLock::new();
+static WHOLE: Whole = Whole;
+static SOLO: AtomicBool = AtomicBool::new(false);
+
+/// The decomposition of this process's run: [`Whole`] unless the binary started on
+/// MPI ranks set another ([`set_world`]), or inside [`solo`]. The run directory asks
+/// it who writes the metadata (part 0) and waits at its barriers.
+#[must_use]
+pub fn world() -> &'static dyn Decomposition {
+    if SOLO.load(Ordering::Acquire) {
+        return &WHOLE;
+    }
+    WORLD.get().map_or(&WHOLE, |w| &**w)
+}
+
+/// Run `f` as if this process were alone ([`world`] is [`Whole`]): what rank 0 does
+/// while the other ranks wait (the voxelization, the atlas, the report page).
+pub fn solo<R>(f: impl FnOnce() -> R) -> R {
+    struct Back(bool);
+    impl Drop for Back {
+        fn drop(&mut self) {
+            SOLO.store(self.0, Ordering::Release);
+        }
+    }
+    let _back = Back(SOLO.swap(true, Ordering::AcqRel));
+    f()
+}
+
+/// Set the decomposition [`world`] returns, once, before any stage runs. Returns
+/// false when one was set already.
+pub fn set_world(d: Box<dyn Decomposition>) -> bool {
+    WORLD.set(d).is_ok()
+}
 
 /// Which blocks this process computes and writes, and how it sees the others' blocks.
 pub trait Decomposition: Send + Sync + std::fmt::Debug {
@@ -48,10 +153,32 @@ pub trait Decomposition: Send + Sync + std::fmt::Debug {
             .collect()
     }
 
-    /// Make the blocks that other processes wrote of the field named `field` readable
-    /// by this one, at least within `halo` voxels of this process's blocks. Called by
-    /// every process at the same point of a pass. One process: nothing to do.
-    fn exchange(&self, field: &str, halo: u64) -> Result<(), GridError>;
+    /// Make the blocks that other processes wrote of the field named `field` (held
+    /// here in `data`) readable by this one, at least within `halo` voxels of this
+    /// process's blocks. Called by every process at the same point of a pass. One
+    /// process: nothing to do.
+    fn exchange(&self, field: &str, data: &dyn HaloData, halo: u64) -> Result<(), GridError>;
+
+    /// Wait until every process has come here. One process: nothing to do.
+    fn barrier(&self) -> Result<(), GridError> {
+        Ok(())
+    }
+
+    /// Every process's `mine`, in part order, on every process.
+    fn all_gather_bytes(&self, mine: Vec<u8>) -> Result<Vec<Vec<u8>>, GridError> {
+        Ok(vec![mine])
+    }
+
+    /// Bytes this process has sent to others so far (halos, gathers).
+    fn bytes_sent(&self) -> u64 {
+        0
+    }
+
+    /// Whether this process writes the run's metadata, holds its lock and commits
+    /// checkpoints (part 0).
+    fn is_root(&self) -> bool {
+        self.part() == 0
+    }
 
     /// Complete per-block partial sums: `partials[i]` belongs to the `i`-th block of
     /// `spec` in block order; each process filled the entries of the blocks it owns and
@@ -82,7 +209,7 @@ impl Decomposition for Whole {
         spec.block_indices()
     }
 
-    fn exchange(&self, _field: &str, _halo: u64) -> Result<(), GridError> {
+    fn exchange(&self, _field: &str, _data: &dyn HaloData, _halo: u64) -> Result<(), GridError> {
         Ok(())
     }
 
@@ -126,7 +253,7 @@ impl Decomposition for Slabs {
         (p * blocks[0] / n)..((p + 1) * blocks[0] / n)
     }
 
-    fn exchange(&self, _field: &str, _halo: u64) -> Result<(), GridError> {
+    fn exchange(&self, _field: &str, _data: &dyn HaloData, _halo: u64) -> Result<(), GridError> {
         Ok(())
     }
 

@@ -21,6 +21,8 @@ mod flat;
 mod mapped;
 mod memory;
 mod mmap;
+#[cfg(feature = "mpi")]
+pub mod mpi;
 mod scratch;
 mod spec;
 mod store;
@@ -28,7 +30,9 @@ mod zarr;
 
 pub use block::{copy_overlap, to_usize, Block};
 pub use budget::{human, MemBudget, BASE_BYTES};
-pub use decomposition::{Decomposition, Slabs, Whole};
+pub use decomposition::{
+    halo_layers, layer_bytes, set_world, solo, world, Decomposition, Field, HaloData, Slabs, Whole,
+};
 pub use external::{open_external_array, ExternalArray};
 pub use flat::FlatStore;
 pub use mapped::MappedStore;
@@ -37,7 +41,7 @@ pub use mmap::MmapStore;
 pub use scratch::{copy_blocks, scratch, Residence};
 pub use spec::GridSpec;
 pub use store::{fill_with, BlockStore, Contiguous, GridError, MappedBlock, Scalar};
-pub use zarr::{fs_store, read_table, write_table, Compression, ZarrStore};
+pub use zarr::{fs_store, mark_complete, read_table, write_table, Compression, ZarrStore};
 
 #[cfg(test)]
 mod tests {

@@ -102,6 +102,10 @@ pub enum GridError {
     /// Grids that must share their shape and blocks do not.
     #[error("grids do not match: {0}")]
     Mismatch(String),
+    /// A message between MPI ranks cannot be sent as asked (too large for one MPI
+    /// message, or the ranks disagree about what they exchange).
+    #[error("MPI ranks: {0}")]
+    Ranks(String),
     /// A chunk does not hold what harmap wrote: its checksum differs, it is cut short,
     /// or it is missing from an array whose every chunk was written. Fix: run the stage
     /// that wrote the array again (the run's files were changed or damaged on disk).

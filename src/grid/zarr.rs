@@ -239,35 +239,42 @@ impl<T: Scalar> ZarrStore<T> {
     /// Set the attribute `harmap_complete` in the array's `zarr.json` (written to a
     /// temporary name and renamed, so a reader sees the old or the new file).
     fn mark_complete(&self) -> Result<(), GridError> {
-        let dir = self.root.join(self.path.trim_start_matches('/'));
-        let file = dir.join("zarr.json");
-        let io = |source| GridError::Io {
-            path: file.clone(),
-            source,
-        };
-        let text = std::fs::read_to_string(&file).map_err(io)?;
-        let mut doc: serde_json::Value =
-            serde_json::from_str(&text).map_err(|e| zerr(&self.path, e))?;
-        let Some(obj) = doc.as_object_mut() else {
-            return Err(zerr(&self.path, "zarr.json is not an object"));
-        };
-        let attrs = obj
-            .entry("attributes")
-            .or_insert_with(|| serde_json::Value::Object(serde_json::Map::new()));
-        if let Some(a) = attrs.as_object_mut() {
-            a.insert(COMPLETE_ATTRIBUTE.into(), true.into());
-        }
-        let tmp = dir.join(format!(".zarr.json.partial-{}", std::process::id()));
-        let bytes = serde_json::to_vec_pretty(&doc).expect("json");
-        std::fs::write(&tmp, bytes)
-            .and_then(|()| std::fs::rename(&tmp, &file))
-            .map_err(|e| {
-                let _ = std::fs::remove_file(&tmp);
-                io(e)
-            })?;
+        mark_complete(&self.root, &self.path)?;
         self.complete.store(true, Ordering::Release);
         Ok(())
     }
+}
+
+/// Set the attribute `harmap_complete` of the array `path` under `root` (what a store
+/// does after writing its last chunk; on MPI ranks, rank 0 once every rank has written
+/// its chunks).
+pub fn mark_complete(root: &Path, path: &str) -> Result<(), GridError> {
+    let dir = root.join(path.trim_start_matches('/'));
+    let file = dir.join("zarr.json");
+    let io = |source| GridError::Io {
+        path: file.clone(),
+        source,
+    };
+    let text = std::fs::read_to_string(&file).map_err(io)?;
+    let mut doc: serde_json::Value = serde_json::from_str(&text).map_err(|e| zerr(path, e))?;
+    let Some(obj) = doc.as_object_mut() else {
+        return Err(zerr(path, "zarr.json is not an object"));
+    };
+    let attrs = obj
+        .entry("attributes")
+        .or_insert_with(|| serde_json::Value::Object(serde_json::Map::new()));
+    if let Some(a) = attrs.as_object_mut() {
+        a.insert(COMPLETE_ATTRIBUTE.into(), true.into());
+    }
+    let tmp = dir.join(format!(".zarr.json.partial-{}", std::process::id()));
+    let bytes = serde_json::to_vec_pretty(&doc).expect("json");
+    std::fs::write(&tmp, bytes)
+        .and_then(|()| std::fs::rename(&tmp, &file))
+        .map_err(|e| {
+            let _ = std::fs::remove_file(&tmp);
+            io(e)
+        })?;
+    Ok(())
 }
 
 /// The fill value `v` as zarrs takes it: the value's bytes (zarrs writes the metadata

@@ -12,7 +12,7 @@ use super::upwind::is_set;
 use super::upwind::{self, Directions, TransportStats};
 use super::{exact::exact_integrator, Hybrid, MapError, MapMethod, MapOptions, MapReport};
 use crate::grid::{
-    BlockStore, Decomposition, GridError, GridSpec, MappedStore, MemStore, Whole, ZarrStore,
+    BlockStore, Decomposition, GridError, GridSpec, MappedStore, MemStore, ZarrStore,
 };
 use crate::math::Idx3;
 use crate::progress::Progress;
@@ -29,7 +29,7 @@ pub fn map(
     opts: &MapOptions,
     progress: &dyn Progress,
 ) -> Result<MapReport, crate::Error> {
-    map_with(run, opts, progress, &Whole)
+    map_with(run, opts, progress, crate::grid::world())
 }
 
 /// [`map`] over the blocks `decomp` owns: each part computes and writes the directions
@@ -67,7 +67,7 @@ pub fn map_with(
             }
             e => e,
         })?;
-    let scratch = run.root().join("map.scratch");
+    let scratch = scratch_of(run, decomp);
     staged.and_scratch(&scratch);
     fresh_dir(&scratch)?;
     let boundary = Boundary::for_run(&attrs, &spec, opts.mem);
@@ -144,6 +144,15 @@ pub fn map_with(
     };
     run.record_stage("map", t0.elapsed().as_secs_f64(), opts, &report)?;
     Ok(report)
+}
+
+/// The map's scratch folder: `map.scratch` in one process, `map.scratch.K` on MPI rank
+/// K of several (each rank has its own).
+fn scratch_of(run: &RunDir, decomp: &dyn Decomposition) -> std::path::PathBuf {
+    match decomp.parts() {
+        1 => run.root().join("map.scratch"),
+        _ => run.root().join(format!("map.scratch.{}", decomp.part())),
+    }
 }
 
 /// The default map's folded voxels: from the upwind direction field (raw f32, read

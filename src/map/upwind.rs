@@ -215,7 +215,7 @@ pub fn transport_with(
                 }
             }
             // (One process: whether any block of the round gained directions.)
-            if !book.end_round(decomp)? {
+            if !book.end_round(decomp, dirs)? {
                 break;
             }
         }

@@ -11,6 +11,7 @@ use super::{
     check_solve, check_stop_radius, voxelize_new_run, PipelineError, PipelineOptions,
     PipelineReport, Source, StageRun, Summary,
 };
+use crate::grid::{solo, world};
 use crate::progress::Progress;
 use crate::run::stages::{freshness, options_in, report_in, stage_record, Freshness};
 use crate::run::RunDir;
@@ -71,9 +72,15 @@ pub fn run(
         if progress.interrupted() {
             return Err(stopped("voxelize"));
         }
-        let (_, r) = voxelize_new_run(source, &opts.voxelize, out, opts.force, progress)
-            .map_err(|e| fail("voxelize", e))?;
-        report.voxelize = Some(r);
+        // On MPI ranks rank 0 voxelizes alone while the others wait (docs/scale-out.md).
+        let w = world();
+        if w.is_root() {
+            let (_, r) =
+                solo(|| voxelize_new_run(source, &opts.voxelize, out, opts.force, progress))
+                    .map_err(|e| fail("voxelize", e))?;
+            report.voxelize = Some(r);
+        }
+        w.barrier().map_err(|e| PipelineError::Stage(e.into()))?;
         report.stages.push(("voxelize", ran(None)));
     }
     let run = RunDir::open(out).map_err(|e| PipelineError::Stage(e.into()))?;
@@ -148,30 +155,33 @@ pub fn run(
 
     // The atlas: by the molecule's residues when they can be had, else by the axis
     // (a file without residue numbers, or moved since the voxelization).
-    if let Some(dest) = &opts.atlas {
+    // On MPI ranks rank 0 alone draws the atlas and writes the page.
+    let w = world();
+    if let Some(dest) = opts.atlas.as_ref().filter(|_| w.is_root()) {
         if progress.interrupted() {
             return Err(stopped("atlas"));
         }
         let a = attrs(&run)?;
         let by = crate::report::default_coloring(&a);
-        if let Err(e) = crate::report::atlas(&run, dest, false, &by) {
+        if let Err(e) = solo(|| crate::report::atlas(&run, dest, false, &by)) {
             if by == crate::report::ColorBy::Axis || !e.is_bad_input() {
                 return Err(fail("atlas", e));
             }
             report.atlas_fallback = Some(e.to_string());
-            crate::report::atlas(&run, dest, false, &crate::report::ColorBy::Axis)
+            solo(|| crate::report::atlas(&run, dest, false, &crate::report::ColorBy::Axis))
                 .map_err(|e| fail("atlas", e))?;
         }
         report.atlas = Some(dest.clone());
     }
     // The report page, after the atlas, whose picture it shows too.
-    if let Some(dest) = &opts.report {
+    if let Some(dest) = opts.report.as_ref().filter(|_| w.is_root()) {
         if progress.interrupted() {
             return Err(stopped("report"));
         }
-        crate::report::html::write_report(&run, dest).map_err(|e| fail("report", e))?;
+        solo(|| crate::report::html::write_report(&run, dest)).map_err(|e| fail("report", e))?;
         report.report = Some(dest.clone());
     }
+    w.barrier().map_err(|e| PipelineError::Stage(e.into()))?;
     report.summary = summary(&attrs(&run)?);
     Ok(report)
 }

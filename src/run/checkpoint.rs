@@ -63,9 +63,14 @@ impl CheckpointFiles {
 
     /// Remove every checkpoint file (a fresh start). Best effort.
     pub fn clear(&self) {
-        for name in [MANIFEST, MANIFEST_PREV, "g0.bin", "g1.bin"] {
-            let _ = fs::remove_file(self.dir.join(name));
+        // On MPI ranks rank 0 removes them, and every rank waits until it has.
+        let w = crate::grid::world();
+        if w.is_root() {
+            for name in [MANIFEST, MANIFEST_PREV, "g0.bin", "g1.bin"] {
+                let _ = fs::remove_file(self.dir.join(name));
+            }
         }
+        let _ = w.barrier();
     }
 
     /// Start writing generation `g` anew (see [`GenerationWriter::finish`]).

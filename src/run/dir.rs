@@ -9,7 +9,16 @@ use super::staging::lock_file;
 use super::{
     io, ome_multiscales, write_atomic, CheckpointFiles, RunError, RunLock, FORMAT_VERSION,
 };
-use crate::grid::{Compression, GridSpec, Scalar, ZarrStore};
+use crate::grid::{world, Compression, GridSpec, Scalar, ZarrStore};
+
+/// Wait for every MPI rank (nothing in one process). A failed barrier is an error of
+/// the run's filesystem view: every rank stops.
+pub(crate) fn sync(root: &Path) -> Result<(), RunError> {
+    world().barrier().map_err(|e| RunError::Io {
+        path: root.to_owned(),
+        source: std::io::Error::other(e.to_string()),
+    })
+}
 
 /// An open run directory.
 #[derive(Clone, Debug)]
@@ -81,7 +90,19 @@ impl RunDir {
     }
 
     /// Change the `harmap` attributes atomically.
+    ///
+    /// On MPI ranks every rank calls it at the same point; rank 0 writes, and every
+    /// rank returns once the new attributes are there.
     pub fn update_attrs(&self, f: impl FnOnce(&mut Map<String, Value>)) -> Result<(), RunError> {
+        if !world().is_root() {
+            return sync(&self.root);
+        }
+        let r = self.update_attrs_here(f);
+        sync(&self.root)?;
+        r
+    }
+
+    fn update_attrs_here(&self, f: impl FnOnce(&mut Map<String, Value>)) -> Result<(), RunError> {
         let mut v = self.attrs()?;
         let obj = v.as_object_mut().ok_or_else(|| RunError::NotARun {
             path: self.root.clone(),
@@ -147,14 +168,25 @@ impl RunDir {
 
     /// Hold the run's lock file (`RUN.lock`) while a stage changes the run, so two
     /// harmap processes never write the same run. Released when the guard drops.
+    ///
+    /// On MPI ranks only rank 0 holds it (the others change only the chunks they own).
     pub fn lock(&self) -> Result<RunLock, RunError> {
+        if !world().is_root() {
+            return Ok(RunLock {
+                file: None,
+                path: self.root.clone(),
+            });
+        }
         let (file, path) = lock_file(&self.root)?;
         if file.try_lock().is_err() {
             return Err(RunError::Busy {
                 path: self.root.clone(),
             });
         }
-        Ok(RunLock { file, path })
+        Ok(RunLock {
+            file: Some(file),
+            path,
+        })
     }
 
     /// Create the image `name` under a temporary directory name; [`RunDir::commit_image`]
@@ -169,12 +201,24 @@ impl RunDir {
     ) -> Result<ZarrStore<T>, crate::Error> {
         let tmp = format!("{name}.partial");
         let dir = self.root.join(&tmp);
+        // MPI ranks: rank 0 makes the array, the others open it when it is there.
+        let w = world();
+        if !w.is_root() {
+            sync(&self.root)?;
+            return Ok(ZarrStore::open(
+                &self.root,
+                &format!("/{tmp}/0"),
+                spec.clone(),
+            )?);
+        }
         // What a commit killed between its two renames left: the older image.
         super::atomic::sweep_dead(&self.root, &format!("{name}.old-"));
         if dir.exists() {
             fs::remove_dir_all(&dir).map_err(io(&dir))?;
         }
-        self.write_image(&tmp, name, spec, fill, compression)
+        let made = self.write_image(&tmp, name, spec, fill, compression);
+        sync(&self.root)?;
+        made
     }
 
     /// A guard that removes the staged images `names` (`RUN/NAME.partial/`) when it
@@ -192,8 +236,30 @@ impl RunDir {
 
     /// Move the image staged by [`RunDir::create_image_staged`] into place, replacing an
     /// older one.
+    ///
+    /// On MPI ranks: once every rank has written its chunks, rank 0 moves it; every
+    /// rank returns once it is in place.
     pub fn commit_image(&self, name: &str) -> Result<(), RunError> {
+        sync(&self.root)?;
+        if !world().is_root() {
+            return sync(&self.root);
+        }
+        let r = self.commit_image_here(name);
+        sync(&self.root)?;
+        r
+    }
+
+    fn commit_image_here(&self, name: &str) -> Result<(), RunError> {
         let tmp = self.root.join(format!("{name}.partial"));
+        // On MPI ranks no rank wrote every chunk, so none marked the array whole.
+        if world().parts() > 1 && tmp.join("0").join("zarr.json").exists() {
+            crate::grid::mark_complete(&self.root, &format!("/{name}.partial/0")).map_err(|e| {
+                RunError::Io {
+                    path: tmp.clone(),
+                    source: std::io::Error::other(e.to_string()),
+                }
+            })?;
+        }
         let dest = self.root.join(name);
         let old = self.root.join(format!("{name}.old-{}", std::process::id()));
         let replacing = dest.exists();
@@ -286,6 +352,9 @@ impl StagedImages {
 
 impl Drop for StagedImages {
     fn drop(&mut self) {
+        if !world().is_root() {
+            return;
+        }
         for dir in &self.dirs {
             if dir.exists() {
                 let _ = fs::remove_dir_all(dir);

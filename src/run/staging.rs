@@ -11,14 +11,17 @@ use super::{io, RunDir, RunError, FORMAT_VERSION};
 /// The lock a stage holds on a run (see [`RunDir::lock`]).
 #[derive(Debug)]
 pub struct RunLock {
-    pub(super) file: fs::File,
+    /// None on the MPI ranks other than 0, which hold no lock of their own.
+    pub(super) file: Option<fs::File>,
     pub(super) path: PathBuf,
 }
 
 impl Drop for RunLock {
     fn drop(&mut self) {
-        let _ = fs::remove_file(&self.path);
-        let _ = self.file.unlock();
+        if let Some(file) = &self.file {
+            let _ = fs::remove_file(&self.path);
+            let _ = file.unlock();
+        }
     }
 }
 

@@ -8,7 +8,7 @@
 //! same values, summed in the same order.
 
 use super::level::PassStats;
-use crate::grid::{Decomposition, GridError, GridSpec, Whole};
+use crate::grid::{BlockStore, Decomposition, Field, GridError, GridSpec, Scalar, Whole};
 use crate::math::Idx3;
 use crate::parallel::map_bounded;
 
@@ -112,8 +112,13 @@ impl BlockLoop<'_> {
 
     /// Make the blocks of `field` that other processes wrote readable here within
     /// `halo` voxels of the owned blocks ([`Decomposition::exchange`]).
-    pub fn exchange(&self, field: &str, halo: u64) -> Result<(), GridError> {
-        self.decomp.exchange(field, halo)
+    pub fn exchange<T: Scalar>(
+        &self,
+        field: &str,
+        data: &dyn BlockStore<T>,
+        halo: u64,
+    ) -> Result<(), GridError> {
+        self.decomp.exchange(field, &Field(data), halo)
     }
 }
 

@@ -26,7 +26,7 @@ use sha2::{Digest, Sha256};
 use super::driver::History;
 use super::error::SolveError;
 use super::options::SolveOptions;
-use crate::grid::{BlockStore, GridError};
+use crate::grid::{world, BlockStore, Decomposition, GridError};
 use crate::progress::Progress;
 use crate::run::{CheckpointFiles, RunDir};
 
@@ -90,6 +90,10 @@ fn write_generation(
     g: usize,
 ) -> Result<(String, u64), GridError> {
     let path = &files.generation_path(g);
+    let w = world();
+    if w.parts() > 1 {
+        return write_generation_ranks(files, u, g, w);
+    }
     let mut out = files.create_generation(g).map_err(io_err(path))?;
     let mut sha = Sha256::new();
     let mut len = 0u64;
@@ -104,6 +108,38 @@ fn write_generation(
         len += buf.len() as u64;
     }
     out.finish().map_err(io_err(path))?;
+    Ok((hex(&sha.finalize()), len))
+}
+
+/// [`write_generation`] on MPI ranks: each rank's blocks (one run in block order) are
+/// gathered, and rank 0 writes them in rank order, which is block order.
+fn write_generation_ranks(
+    files: &CheckpointFiles,
+    u: &dyn BlockStore<f64>,
+    g: usize,
+    w: &dyn Decomposition,
+) -> Result<(String, u64), GridError> {
+    let mut mine = Vec::new();
+    for block in w.owned(u.spec()) {
+        for v in u.read_block(block)? {
+            mine.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    let parts = w.all_gather_bytes(mine)?;
+    let mut sha = Sha256::new();
+    let mut len = 0u64;
+    for p in &parts {
+        sha.update(p);
+        len += p.len() as u64;
+    }
+    if w.is_root() {
+        let path = &files.generation_path(g);
+        let mut out = files.create_generation(g).map_err(io_err(path))?;
+        for p in &parts {
+            out.write_all(p).map_err(io_err(path))?;
+        }
+        out.finish().map_err(io_err(path))?;
+    }
     Ok((hex(&sha.finalize()), len))
 }
 
@@ -147,10 +183,15 @@ fn read_generation(
 ) -> Result<(), GridError> {
     let path = &files.generation_path(m.generation);
     let mut input = files.open_generation(m.generation).map_err(io_err(path))?;
+    // On MPI ranks each keeps the blocks it owns (the caller exchanges the halos).
+    let w = world();
     for block in u.spec().block_indices() {
         let len = crate::math::volume(u.spec().block_shape(block)) as usize;
         let mut bytes = vec![0u8; len * 8];
         input.read_exact(&mut bytes).map_err(io_err(path))?;
+        if !w.owns(u.spec(), block) {
+            continue;
+        }
         let values: Vec<f64> = bytes
             .chunks_exact(8)
             .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
@@ -236,8 +277,12 @@ impl Checkpoints {
             bytes,
             history: h,
         };
-        self.files
-            .commit_manifest(serde_json::to_string_pretty(&m).expect("json").as_bytes())?;
+        let w = world();
+        if w.is_root() {
+            self.files
+                .commit_manifest(serde_json::to_string_pretty(&m).expect("json").as_bytes())?;
+        }
+        w.barrier()?;
         self.written += 1;
         Ok(())
     }

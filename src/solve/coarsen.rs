@@ -70,5 +70,5 @@ pub fn coarsen_mask(
         }
         mask.write_block(cb, &m)
     })?;
-    blocks.exchange(field, halo)
+    blocks.exchange(field, mask, halo)
 }

@@ -58,6 +58,6 @@ pub fn jacobi_pass(
         l.u[dst].write_block(b, &new)?;
         Ok(st)
     })?;
-    blocks.exchange(&l.field(&format!("u{dst}")), 1)?;
+    blocks.exchange(&l.field(&format!("u{dst}")), &*l.u[dst], 1)?;
     Ok(st)
 }

@@ -119,7 +119,11 @@ impl Scratch {
         fill: T,
     ) -> Result<Box<dyn BlockStore<T>>, GridError> {
         let file = self.dir.join(format!("{name}.bin"));
-        let at = if in_memory {
+        // On MPI ranks a level in memory is held block by block: a rank holds only its
+        // slab and the halo blocks it received, never the whole array.
+        let at = if in_memory && crate::grid::world().parts() > 1 {
+            Residence::Blocks
+        } else if in_memory {
             Residence::Array
         } else {
             Residence::File(&file)
@@ -373,9 +377,12 @@ impl<'d> Hierarchy<'d> {
             coarse.u[1].write_block(cb, &out)?;
             rhs.write_block(cb, &vec![0.0; out.len()])
         })?;
-        for name in ["u0", "u1", "f"] {
-            self.blocks.exchange(&coarse.field(name), coarse.halo)?;
-        }
+        self.blocks
+            .exchange(&coarse.field("u0"), &*coarse.u[0], coarse.halo)?;
+        self.blocks
+            .exchange(&coarse.field("u1"), &*coarse.u[1], coarse.halo)?;
+        self.blocks
+            .exchange(&coarse.field("f"), &**rhs, coarse.halo)?;
         coarse.flat.state_replaced();
         Ok(())
     }

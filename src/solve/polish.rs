@@ -301,7 +301,7 @@ impl State<'_> {
                     .enumerate()
                     .fold(0u8, |m, (f, &moved)| m | u8::from(moved) << f);
             }
-            blocks.exchange("u", 1)?;
+            blocks.exchange("u", u, 1)?;
         }
         Ok(pass)
     }

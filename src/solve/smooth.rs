@@ -151,7 +151,11 @@ impl Level {
         blocks: &BlockLoop<'_>,
     ) -> Result<PassStats, GridError> {
         let st = blocks.stats(&self.spec, |b| self.smooth_block(b, pass))?;
-        blocks.exchange(&self.field(&format!("u{}", pass.dst)), self.halo)?;
+        blocks.exchange(
+            &self.field(&format!("u{}", pass.dst)),
+            &*self.u[pass.dst],
+            self.halo,
+        )?;
         if let Some(c) = pass.restrict_into {
             c.exchange_rhs(blocks)?;
         }

@@ -24,7 +24,7 @@ use super::options::SolveOptions;
 use super::plan::plan_memory;
 use super::polish::PolishReport;
 use super::report::SolveReport;
-use crate::grid::{human, BlockStore, Compression, Decomposition, GridError, GridSpec, Whole};
+use crate::grid::{human, BlockStore, Compression, Decomposition, GridError, GridSpec};
 use crate::progress::Progress;
 use crate::run::RunDir;
 use crate::voxelize::cuts::NAME as CUTS;
@@ -39,12 +39,12 @@ pub fn solve(
     stop: &AtomicBool,
     progress: &dyn Progress,
 ) -> Result<SolveReport, crate::Error> {
-    solve_with(run, opts, &Whole, stop, progress)
+    solve_with(run, opts, crate::grid::world(), stop, progress)
 }
 
 /// [`solve`] as one part of a decomposition: this process relaxes the blocks
 /// `decomp` gives it and exchanges halos through it (see the module docs of
-/// [`crate::solve`]). With [`Whole`] it is [`solve`].
+/// [`crate::solve`]). With [`Whole`](crate::grid::Whole) it is [`solve`].
 pub fn solve_with(
     run: &RunDir,
     opts: &SolveOptions,
@@ -121,7 +121,9 @@ pub fn solve_with(
         seconds - t_polish
     ));
     run.record_stage("solve", seconds, opts, &report)?;
-    let _ = fs::remove_dir_all(&dir);
+    if decomp.is_root() {
+        let _ = fs::remove_dir_all(&dir);
+    }
     Ok(report)
 }
 
@@ -159,9 +161,13 @@ struct Setup<'d> {
     in_memory: Vec<bool>,
 }
 
-/// A fresh scratch directory `dir/scratch`.
-fn scratch_dir(dir: &Path) -> Result<Scratch, GridError> {
-    let scratch = dir.join("scratch");
+/// A fresh scratch directory `dir/scratch` (`dir/scratch.K` on MPI rank K of several).
+fn scratch_dir(dir: &Path, decomp: &dyn Decomposition) -> Result<Scratch, GridError> {
+    let scratch = if decomp.parts() > 1 {
+        dir.join(format!("scratch.{}", decomp.part()))
+    } else {
+        dir.join("scratch")
+    };
     let io = |source| GridError::Io {
         path: scratch.clone(),
         source,
@@ -190,7 +196,7 @@ fn build<'d>(
     } else {
         None
     };
-    let maker = scratch_dir(dir)?;
+    let maker = scratch_dir(dir, decomp)?;
     let coarse = if opts.method == Method::Multigrid {
         coarse_specs(spec, opts.cycle.coarsest)
     } else {
@@ -219,7 +225,7 @@ fn build<'d>(
             let m: Vec<u8> = l.iter().zip(&p).map(|(&l, &p)| fine_mask(l, p)).collect();
             mask.write_block(b, &m)
         })?;
-        blocks.exchange("cuts@0", halo)?;
+        blocks.exchange("cuts@0", &*arms, halo)?;
         Some(arms)
     } else {
         blocks.each(spec, |b| mask.write_block(b, &labels.read_block(b)?))?;
@@ -238,7 +244,7 @@ fn build<'d>(
         depth: 0,
         halo,
     };
-    blocks.exchange(&fine.field("mask"), halo)?;
+    blocks.exchange(&fine.field("mask"), &*fine.mask, halo)?;
     let h = Hierarchy::build(
         fine,
         opts.cycle,
@@ -268,6 +274,9 @@ fn start(
     let out = if opts.resume {
         let m = ck.latest(progress).map_err(crate::Error::from)?;
         ck.read(&*fine.u[0], &m)?;
+        // On MPI ranks each read its own blocks: the halos come from the others.
+        h.blocks
+            .exchange(&fine.field("u0"), &*fine.u[0], fine.halo)?;
         let hist = m.history;
         progress.info(&format!("resuming after {} iterations", hist.iterations));
         let at = Some(hist.iterations);
@@ -382,6 +391,9 @@ fn iterate(
         let periodic = opts.checkpoint_every > 0.0
             && last_ck.elapsed().as_secs_f64() >= opts.checkpoint_every
             && matches!(d, Decision::Continue);
+        // MPI ranks agree: a stop request on any rank stops all, and rank 0's clock
+        // says when to checkpoint.
+        let (d, interrupted, periodic) = agree(it.h.blocks.decomp, d, interrupted, periodic)?;
         if periodic || interrupted {
             // The state is whole in generation `cur` at this point.
             if let Err(e) = ck.write(&*it.h.levels[0].u[hs.cur], hs) {
@@ -397,6 +409,26 @@ fn iterate(
         Some(e) => Err(e),
         None => Ok(why),
     }
+}
+
+/// The decision of every MPI rank after an iteration: stopped when any rank was asked
+/// to stop, checkpointed when rank 0's clock says so. One process: as given.
+fn agree(
+    decomp: &dyn Decomposition,
+    d: Decision,
+    interrupted: bool,
+    periodic: bool,
+) -> Result<(Decision, bool, bool), GridError> {
+    if decomp.parts() == 1 {
+        return Ok((d, interrupted, periodic));
+    }
+    let all = decomp.all_gather_bytes(vec![u8::from(interrupted), u8::from(periodic)])?;
+    let any_stop = all.iter().any(|v| v[0] == 1);
+    let periodic = all[0][1] == 1;
+    if any_stop && matches!(d, Decision::Continue) {
+        return Ok((Decision::Stop(StopReason::Interrupted), true, false));
+    }
+    Ok((d, interrupted, periodic && !any_stop))
 }
 
 /// Relative accuracy where u is tiny (thin parts of the shape), after the iterations.

@@ -124,7 +124,9 @@ impl Level {
     /// After this coarse level's right-hand side and zero correction were written:
     /// exchange both.
     pub(super) fn exchange_rhs(&self, blocks: &BlockLoop<'_>) -> Result<(), GridError> {
-        blocks.exchange(&self.field("f"), self.halo)?;
-        blocks.exchange(&self.field("u0"), self.halo)
+        if let Some(f) = &self.f {
+            blocks.exchange(&self.field("f"), &**f, self.halo)?;
+        }
+        blocks.exchange(&self.field("u0"), &*self.u[0], self.halo)
     }
 }

@@ -23,6 +23,7 @@ pub mod field;
 pub mod integrate;
 pub mod metrics;
 pub mod nearest;
+pub mod ranks;
 pub mod seeds;
 pub mod stage;
 pub mod surface;

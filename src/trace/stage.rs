@@ -406,7 +406,12 @@ pub fn trace_seeds(
     ));
     let t = Instant::now();
     let phi_at = tracer.phi_at(&seed_pts)?;
-    let (outcomes, paths, stats) = tracer.trace(&seed_pts, record_paths, progress)?;
+    // On MPI ranks (without recorded paths) the seeds are traced across the ranks.
+    let (outcomes, paths, stats) = if crate::grid::world().parts() > 1 && !record_paths {
+        tracer.trace_across(&seed_pts, progress, crate::grid::world())?
+    } else {
+        tracer.trace(&seed_pts, record_paths, progress)?
+    };
     Ok(Traced {
         seeds: seed_pts,
         vertex,
@@ -582,7 +587,10 @@ pub fn trace(
             }
         }),
     };
-    write_seeds(run.root(), "seeds.partial", &table, opts.seeds)?;
+    // On MPI ranks every rank holds the whole table; rank 0 writes it.
+    if crate::grid::world().is_root() {
+        write_seeds(run.root(), "seeds.partial", &table, opts.seeds)?;
+    }
     run.commit_image("seeds")?;
     let seconds = t0.elapsed().as_secs_f64();
     run.record_stage("trace", seconds, opts, &report)?;

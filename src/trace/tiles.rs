@@ -94,8 +94,10 @@ impl Tiling {
     }
 
     /// The tile that owns `p` (points off the grid belong to the nearest edge tile).
-    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
-    fn tile_of(&self, p: DVec3) -> u64 {
+    #[allow(clippy::many_single_char_names)]
+    // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
+    #[must_use]
+    pub fn tile_of(&self, p: DVec3) -> u64 {
         let t = self.tiles();
         let c = [p.z, p.y, p.x];
         let idx: [u64; 3] = std::array::from_fn(|a| {
@@ -134,7 +136,8 @@ impl Tiling {
     }
 
     /// Whether `decomp` owns tile `k`: the block of its first cell is its.
-    fn owned_by(&self, k: u64, spec: &GridSpec, decomp: &dyn Decomposition) -> bool {
+    #[must_use]
+    pub fn owned_by(&self, k: u64, spec: &GridSpec, decomp: &dyn Decomposition) -> bool {
         let t = self.tiles();
         let idx = [k / (t[1] * t[2]), (k / t[2]) % t[1], k % t[2]];
         let b: Idx3 =

@@ -8,8 +8,9 @@
 //! directions arrive through [`Decomposition::exchange`] after each round, and a block
 //! next to another part's is visited again in the next round when they did.
 
+use super::Directions;
 use super::{Ctx, Rule, TransportStats, Visit, HALO};
-use crate::grid::{Decomposition, GridError, GridSpec};
+use crate::grid::{Decomposition, Field, GridError, GridSpec};
 use crate::math::{volume, Idx3};
 use crate::parallel::map_bounded;
 use crate::trace::integrate::StopBall;
@@ -132,8 +133,14 @@ impl Book<'_> {
     /// The end of a round: the other parts' directions made readable here, and whether
     /// any part's block gained directions in it (the same answer in every part). A block
     /// next to another part's block that gained is visited again.
-    pub(super) fn end_round(&mut self, decomp: &dyn Decomposition) -> Result<bool, GridError> {
-        decomp.exchange("map.directions", HALO)?;
+    pub(super) fn end_round(
+        &mut self,
+        decomp: &dyn Decomposition,
+        dirs: &Directions,
+    ) -> Result<bool, GridError> {
+        for (c, name) in dirs.c.iter().zip(["x", "y", "z"]) {
+            decomp.exchange(&format!("map.directions.{name}"), &Field(&**c), HALO)?;
+        }
         let mut partials: Vec<f64> = self
             .gained
             .iter()

@@ -1,0 +1,284 @@
+//! MPI ranks (the `mpi` feature): [`MpiSlabs`], the [`Slabs`] decomposition whose
+//! exchange and reductions are messages between ranks. The only file that knows the
+//! `mpi` crate.
+//!
+//! - A halo exchange sends, to every other rank, the blocks it owns in the block layers
+//!   that rank reads within the halo ([`halo_layers`]), in block order, with one
+//!   `MPI_Alltoallv` of bytes; each rank writes what it receives into its own store of
+//!   the field. Fields whose other blocks are never read are not sent.
+//! - Per-block partial sums are completed with one `MPI_Allgatherv` of the owned
+//!   entries (a slab's blocks are one run in block order), never with a floating-point
+//!   reduction: the caller adds every entry in block order, so the sum is the same bytes
+//!   for any number of ranks.
+//! - Every call is collective: every rank makes it at the same point of the same pass.
+//!   MPI's default error handler aborts the job on a communication failure, and a rank
+//!   that dies takes the job down (see docs/scale-out.md).
+
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use mpi::datatype::{Partition, PartitionMut};
+use mpi::environment::{Threading, Universe};
+use mpi::topology::SimpleCommunicator;
+use mpi::traits::{Communicator, CommunicatorCollectives};
+use mpi::Count;
+
+use super::decomposition::{halo_layers, layer_bytes};
+use super::{Decomposition, GridError, GridSpec, HaloData, Slabs};
+use crate::math::Idx3;
+
+/// Started MPI; finalized when dropped (keep it alive until the process ends).
+pub struct Mpi {
+    _universe: Universe,
+    /// This rank.
+    pub rank: usize,
+    /// The number of ranks.
+    pub size: usize,
+}
+
+/// Initialize MPI when the process was started by `mpiexec` (or as a singleton). With
+/// more than one rank the [`super::world`] decomposition becomes [`MpiSlabs`]; with one
+/// it stays [`super::Whole`], the one-process path. `None` when MPI cannot start.
+#[must_use]
+pub fn init() -> Option<Mpi> {
+    let (universe, _) = mpi::initialize_with_threading(Threading::Serialized)?;
+    let world = universe.world();
+    let (rank, size) = (world.rank() as usize, world.size() as usize);
+    if size > 1 {
+        super::set_world(Box::new(MpiSlabs::new(world)));
+    }
+    Some(Mpi {
+        _universe: universe,
+        rank,
+        size,
+    })
+}
+
+/// End the job on every rank with `code` (MPI_Abort): what a rank that failed does, so
+/// that no other rank waits for it forever.
+pub fn abort(code: i32) -> ! {
+    mpi::topology::SimpleCommunicator::world().abort(code)
+}
+
+/// Slabs of block layers, one per rank, with messages for halos and reductions.
+pub struct MpiSlabs {
+    comm: SimpleCommunicator,
+    slabs: Slabs,
+    sent: AtomicU64,
+}
+
+impl std::fmt::Debug for MpiSlabs {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("MpiSlabs")
+            .field("slabs", &self.slabs)
+            .finish_non_exhaustive()
+    }
+}
+
+// SAFETY: an MPI communicator handle is a plain integer (MPICH) or pointer (Open MPI)
+// naming a library object; the library is initialized with MPI_THREAD_SERIALIZED and
+// harmap calls it from one thread at a time (the stage's driver, between its parallel
+// block loops).
+unsafe impl Send for MpiSlabs {}
+// SAFETY: as above.
+unsafe impl Sync for MpiSlabs {}
+
+fn count(n: usize) -> Result<Count, GridError> {
+    Count::try_from(n).map_err(|_| {
+        GridError::Ranks(format!(
+            "{n} bytes in one message exceed MPI's count limit (2 GiB); use smaller blocks (--chunk) or more ranks"
+        ))
+    })
+}
+
+fn displs(counts: &[Count]) -> Vec<Count> {
+    counts
+        .iter()
+        .scan(0, |acc, &c| {
+            let d = *acc;
+            *acc += c;
+            Some(d)
+        })
+        .collect()
+}
+
+impl MpiSlabs {
+    /// The slabs of `comm`'s ranks.
+    #[must_use]
+    pub fn new(comm: SimpleCommunicator) -> Self {
+        let slabs = Slabs {
+            part: comm.rank() as usize,
+            parts: comm.size() as usize,
+        };
+        Self {
+            comm,
+            slabs,
+            sent: AtomicU64::new(0),
+        }
+    }
+
+    /// The blocks of layers `layers` of `spec` in block order.
+    fn blocks_of(spec: &GridSpec, layers: &[u64]) -> Vec<Idx3> {
+        let nb = spec.blocks();
+        let mut out = Vec::new();
+        for &l in layers {
+            for y in 0..nb[1] {
+                for x in 0..nb[2] {
+                    out.push([l, y, x]);
+                }
+            }
+        }
+        out
+    }
+}
+
+impl Decomposition for MpiSlabs {
+    fn part(&self) -> usize {
+        self.slabs.part
+    }
+
+    fn parts(&self) -> usize {
+        self.slabs.parts
+    }
+
+    fn z_layers(&self, part: usize, blocks: Idx3) -> std::ops::Range<u64> {
+        self.slabs.z_layers(part, blocks)
+    }
+
+    fn exchange(&self, field: &str, data: &dyn HaloData, halo: u64) -> Result<(), GridError> {
+        let spec = data.spec();
+        let nb = spec.blocks();
+        let me = self.part();
+        let n = self.parts();
+        let elem = data.elem_bytes();
+        let mine = self.z_layers(me, nb);
+        // What each rank reads of the others: its halo layers. A coarse level of the
+        // solve (`name@depth`, depth > 0) is read under the rank's finer blocks too,
+        // whichever rank owns its blocks: every rank gets all of it (a coarse level
+        // is an eighth of the one above, or less).
+        let coarse = field
+            .rsplit_once('@')
+            .and_then(|(_, d)| d.parse::<u32>().ok())
+            .is_some_and(|d| d > 0);
+        let wants: Vec<Vec<u64>> = (0..n)
+            .map(|q| {
+                let own = self.z_layers(q, nb);
+                if coarse {
+                    (0..nb[0]).filter(|l| !own.contains(l)).collect()
+                } else {
+                    halo_layers(spec, &own, halo)
+                }
+            })
+            .collect();
+        let mut send = Vec::new();
+        let mut send_counts = Vec::with_capacity(n);
+        for (q, want) in wants.iter().enumerate() {
+            let before = send.len();
+            if q != me {
+                let layers: Vec<u64> = want.iter().copied().filter(|l| mine.contains(l)).collect();
+                for b in Self::blocks_of(spec, &layers) {
+                    data.block_bytes(b, &mut send)?;
+                }
+            }
+            send_counts.push(count(send.len() - before)?);
+        }
+        let mut recv_layers = Vec::with_capacity(n);
+        let mut recv_counts = Vec::with_capacity(n);
+        for p in 0..n {
+            let theirs = self.z_layers(p, nb);
+            let layers: Vec<u64> = if p == me {
+                Vec::new()
+            } else {
+                wants[me]
+                    .iter()
+                    .copied()
+                    .filter(|l| theirs.contains(l))
+                    .collect()
+            };
+            recv_counts.push(count(layer_bytes(spec, &layers, elem) as usize)?);
+            recv_layers.push(layers);
+        }
+        let total: usize = recv_counts.iter().map(|&c| c as usize).sum();
+        let mut recv = vec![0u8; total];
+        {
+            let sd = displs(&send_counts);
+            let rd = displs(&recv_counts);
+            let sp = Partition::new(&send[..], &send_counts[..], &sd[..]);
+            let mut rp = PartitionMut::new(&mut recv[..], &recv_counts[..], &rd[..]);
+            self.comm.all_to_all_varcount_into(&sp, &mut rp);
+        }
+        self.sent.fetch_add(
+            send.len() as u64 - u64::from(send_counts[me].unsigned_abs()),
+            Ordering::Relaxed,
+        );
+        let mut at = 0;
+        for layers in &recv_layers {
+            for b in Self::blocks_of(spec, layers) {
+                let len = crate::math::volume(spec.block_shape(b)) as usize * elem;
+                data.put_block_bytes(b, &recv[at..at + len])?;
+                at += len;
+            }
+        }
+        Ok(())
+    }
+
+    fn reduce_in_block_order(
+        &self,
+        spec: &GridSpec,
+        partials: &mut [f64],
+    ) -> Result<(), GridError> {
+        let nb = spec.blocks();
+        let per_layer = (nb[1] * nb[2]) as usize;
+        let ranges: Vec<std::ops::Range<usize>> = (0..self.parts())
+            .map(|p| {
+                let l = self.z_layers(p, nb);
+                l.start as usize * per_layer..l.end as usize * per_layer
+            })
+            .collect();
+        let counts: Vec<Count> = ranges
+            .iter()
+            .map(|r| count(r.len()))
+            .collect::<Result<_, _>>()?;
+        let d = displs(&counts);
+        let mine = partials[ranges[self.part()].clone()].to_vec();
+        let mut all = vec![0.0f64; partials.len()];
+        {
+            let mut rp = PartitionMut::new(&mut all[..], &counts[..], &d[..]);
+            self.comm.all_gather_varcount_into(&mine[..], &mut rp);
+        }
+        self.sent.fetch_add(
+            (mine.len() * 8 * (self.parts() - 1)) as u64,
+            Ordering::Relaxed,
+        );
+        partials.copy_from_slice(&all);
+        Ok(())
+    }
+
+    fn barrier(&self) -> Result<(), GridError> {
+        self.comm.barrier();
+        Ok(())
+    }
+
+    fn all_gather_bytes(&self, mine: Vec<u8>) -> Result<Vec<Vec<u8>>, GridError> {
+        let n = self.parts();
+        let my_count = count(mine.len())?;
+        let mut counts: Vec<Count> = vec![0; n];
+        self.comm.all_gather_into(&my_count, &mut counts[..]);
+        let total: usize = counts.iter().map(|&c| c as usize).sum();
+        count(total)?;
+        let d = displs(&counts);
+        let mut all = vec![0u8; total];
+        {
+            let mut rp = PartitionMut::new(&mut all[..], &counts[..], &d[..]);
+            self.comm.all_gather_varcount_into(&mine[..], &mut rp);
+        }
+        self.sent
+            .fetch_add((mine.len() * (n - 1)) as u64, Ordering::Relaxed);
+        Ok((0..n)
+            .map(|p| all[d[p] as usize..(d[p] + counts[p]) as usize].to_vec())
+            .collect())
+    }
+
+    fn bytes_sent(&self) -> u64 {
+        self.sent.load(Ordering::Relaxed)
+    }
+}

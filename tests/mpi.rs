@@ -1,0 +1,152 @@
+//! MPI ranks (`--features mpi`): `mpiexec -n 1/2/3 harmap run` gives the same bytes as
+//! one process, and a killed rank takes the job down.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use harmap::grid::{read_table, BlockStore, Scalar};
+use harmap::run::RunDir;
+
+use crate::common::shared_data;
+
+/// `mpiexec` on the PATH; None (after saying so) when absent, a failure under
+/// `CI=true`, where .ci/run installs MPICH.
+fn mpiexec() -> Option<PathBuf> {
+    let found = std::env::var_os("PATH").and_then(|paths| {
+        std::env::split_paths(&paths)
+            .map(|d| d.join("mpiexec"))
+            .find(|p| p.is_file())
+    });
+    if found.is_none() {
+        assert!(
+            std::env::var("CI").as_deref() != Ok("true"),
+            "CI=true but mpiexec is missing: install mpich libmpich-dev (as .ci/run does)"
+        );
+        eprintln!("skipped: mpiexec not found");
+    }
+    found
+}
+
+static JOBS: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn harmap() -> &'static str {
+    env!("CARGO_BIN_EXE_harmap")
+}
+
+/// `harmap -q --progress never ARGS`, on `ranks` MPI ranks (0: one plain process).
+fn run(mpiexec: &Path, ranks: usize, args: &[&str]) -> Output {
+    let mut c = if ranks == 0 {
+        Command::new(harmap())
+    } else {
+        let mut c = Command::new(mpiexec);
+        c.args(["-n", &ranks.to_string(), harmap()]);
+        c
+    };
+    c.args(["-q", "--progress", "never"]).args(args);
+    let out = c.output().expect("start harmap");
+    assert!(
+        out.status.success(),
+        "{ranks} ranks: {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+fn bytes_of<T: Scalar>(v: &[T]) -> Vec<u8> {
+    bytemuck::cast_slice(v).to_vec()
+}
+
+/// An image of the run, every voxel's bytes.
+fn image<T: Scalar>(run: &RunDir, name: &str, fill: T) -> Vec<u8> {
+    let store = run.open_image::<T>(name).expect("image");
+    let shape = store.spec().shape.map(|c| c as usize);
+    bytes_of(&store.read_region([0; 3], shape, fill).expect("read").data)
+}
+
+/// A seed table column's values as bytes, whatever its type.
+fn column(root: &Path, name: &str) -> Vec<u8> {
+    let path = format!("/seeds/{name}");
+    let meta = std::fs::read_to_string(root.join("seeds").join(name).join("zarr.json"))
+        .expect("column metadata");
+    let v: serde_json::Value = serde_json::from_str(&meta).expect("json");
+    let bytes = match v["data_type"].as_str().expect("data_type") {
+        "float64" => bytes_of(&read_table::<f64>(root, &path).expect("read").1),
+        "float32" => bytes_of(&read_table::<f32>(root, &path).expect("read").1),
+        "uint64" => bytes_of(&read_table::<u64>(root, &path).expect("read").1),
+        "uint32" => bytes_of(&read_table::<u32>(root, &path).expect("read").1),
+        "uint8" => bytes_of(&read_table::<u8>(root, &path).expect("read").1),
+        t => panic!("seed column {name}: type {t} not compared"),
+    };
+    assert!(!bytes.is_empty(), "seed column {name} is empty");
+    bytes
+}
+
+/// Every output the issue names: labels, phi, u, theta, psi and each seed column.
+fn outputs(root: &Path) -> Vec<(String, Vec<u8>)> {
+    let run = RunDir::open(root).expect("a run");
+    let mut out = vec![
+        ("labels".to_owned(), image::<u8>(&run, "labels", 0)),
+        ("phi".to_owned(), image::<f64>(&run, "phi", f64::NAN)),
+        ("u".to_owned(), image::<f64>(&run, "u", f64::NAN)),
+        ("theta".to_owned(), image::<f64>(&run, "theta", f64::NAN)),
+        ("psi".to_owned(), image::<f64>(&run, "psi", f64::NAN)),
+    ];
+    let mut names: Vec<String> = std::fs::read_dir(root.join("seeds"))
+        .expect("seed table")
+        .filter_map(Result::ok)
+        .filter(|e| e.path().is_dir())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    assert!(names.iter().any(|n| n == "theta"), "seed columns {names:?}");
+    for n in names {
+        let b = column(root, &n);
+        out.push((format!("seeds/{n}"), b));
+    }
+    out
+}
+
+/// `harmap run INPUT ARGS` in one process and on each rank count of `ranks`: the same
+/// bytes in every output.
+fn same_bytes_on_ranks(input: &Path, args: &[&str], ranks: &[usize]) {
+    let Some(mpiexec) = mpiexec() else { return };
+    // One job at a time: the ranks of two would share the cores.
+    let _one = JOBS
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let dir = tempfile::tempdir().unwrap();
+    let go = |n: usize| {
+        let out = dir.path().join(format!("r{n}.harmap"));
+        let mut a = vec!["run", input.to_str().unwrap(), "-o", out.to_str().unwrap()];
+        a.extend_from_slice(args);
+        run(&mpiexec, n, &a);
+        outputs(&out)
+    };
+    let one = go(0);
+    // The outputs differ from each other (a comparison that could not fail proves
+    // nothing).
+    assert_ne!(one[1].1, one[2].1, "phi and u");
+    for &n in ranks {
+        let many = go(n);
+        assert_eq!(one.len(), many.len(), "{n} ranks: the outputs");
+        for ((name, a), (_, b)) in one.iter().zip(&many) {
+            assert!(a == b, "{n} ranks: {name} differs from one process's");
+        }
+    }
+}
+
+#[test]
+fn spot_on_two_and_three_ranks_is_the_same_bytes_as_one_process() {
+    let Some(spot) = shared_data("meshes/spot.obj") else {
+        return;
+    };
+    same_bytes_on_ranks(&spot, &["--resolution", "96"], &[2, 3]);
+}
+
+#[test]
+fn crambin_on_one_two_and_three_ranks_is_the_same_bytes_as_one_process() {
+    let Some(pdb) = shared_data("molecules/1crn.pdb") else {
+        return;
+    };
+    same_bytes_on_ranks(&pdb, &["--spacing", "0.5"], &[1, 2, 3]);
+}
