@@ -18,6 +18,7 @@ mod center;
 mod center_ball;
 mod classify;
 pub mod closing;
+mod compact;
 mod components;
 pub mod cuts;
 mod error;
@@ -50,6 +51,8 @@ pub use grid_fit::{fit_bbox, fit_volume, DEFAULT_RESOLUTION, MAX_AXIS, MAX_VOXEL
 pub(crate) use options::scratch_grid;
 pub use probes::probe_summary;
 pub use report::{ProbeTrial, RepairRegion, TopologyRepair, VoxelizeReport};
+#[doc(hidden)]
+pub use rounds::compact_repair_above;
 pub use scanline::InsideRule;
 pub use stage::voxelize;
 pub use standard::{standard_ball, StandardBall};

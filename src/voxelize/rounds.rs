@@ -4,12 +4,13 @@
 //! windows leave, checked and tallied for the report. [`super::topology`] decides
 //! whether to repair; this file does it.
 
+use std::cell::Cell;
 use std::time::Instant;
 
 use super::topology::{measure, summary, ClosingGrid, Env};
 use super::{
-    closing, components, euler, repair, windows, RepairRegion, TopologyRepair, VoxelizeError,
-    HANDLE_PROBE, HANDLE_PROBE_ANGSTROM,
+    closing, compact, components, euler, repair, windows, RepairRegion, TopologyRepair,
+    VoxelizeError, HANDLE_PROBE, HANDLE_PROBE_ANGSTROM,
 };
 use crate::grid::human;
 use crate::input::Shape;
@@ -28,6 +29,21 @@ const WHOLE_GRID_VOXELS: u64 = 1 << 23;
 /// [`repair::BYTES_PER_VOXEL`], refused with "give more --mem" when `--mem` leaves less.
 /// Fixed, so that the result never depends on `--mem`: it is this repair or a refusal.
 const WHOLE_GRID_FALLBACK_VOXELS: u64 = 1 << 25;
+
+thread_local! {
+    /// Grids of more voxels than this get the compact cut ([`compact`]) instead of the
+    /// windows, closings and the grid-wide repair: [`WHOLE_GRID_FALLBACK_VOXELS`] but in
+    /// the tests that lower it ([`compact_repair_above`]).
+    static COMPACT_ABOVE: Cell<u64> = const { Cell::new(WHOLE_GRID_FALLBACK_VOXELS) };
+}
+
+/// For tests: the repairs that this thread runs from now on take the compact cut on
+/// grids of more than `voxels` voxels (None: the default, 32 Mi voxels), so that a small
+/// grid can go through it.
+#[doc(hidden)]
+pub fn compact_repair_above(voxels: Option<u64>) {
+    COMPACT_ABOVE.with(|c| c.set(voxels.unwrap_or(WHOLE_GRID_FALLBACK_VOXELS)));
+}
 
 /// What the repair has changed so far.
 #[derive(Default)]
@@ -224,6 +240,36 @@ fn round(
     Ok(closes)
 }
 
+/// The compact cut of the whole solid (`solid` voxels after the tidying), when it fits
+/// in what `--mem` leaves, of the solid with Euler characteristic `chi`; tallied.
+fn compact_cut(env: &Env, tally: &mut Tally, solid: u64, chi: i64) -> Result<(), crate::Error> {
+    let voxels = env.spec.num_voxels();
+    let need = compact::bytes_needed(voxels, solid);
+    if need > env.room {
+        return Err(VoxelizeError::Topology(format!(
+            "{}: the topology repair of a grid of {voxels} voxels, {solid} of them solid, holds {} ({} bytes a voxel of the grid and {} a solid voxel), more than the {} --mem {} leaves; give more --mem, a coarser grid, or --topology strict / --allow-genus",
+            env.source_name,
+            human(need),
+            compact::BYTES_PER_GRID_VOXEL,
+            compact::BYTES_PER_SOLID_VOXEL,
+            human(env.room),
+            env.opts.mem
+        ))
+        .into());
+    }
+    let surface = match env.shape {
+        Shape::Mesh(m) => Some((m, env.spec)),
+        _ => None,
+    };
+    let o = compact::cut(env.solid, surface)?;
+    tally.removed += o.removed;
+    tally.cut += 1 - chi;
+    // The fill is not tried on this path.
+    tally.alternative = u64::MAX;
+    tally.regions.extend(o.regions);
+    Ok(())
+}
+
 /// Refuse a window that does not fit in what `--mem` leaves.
 fn check_room(env: &Env, voxels: u64) -> Result<(), crate::Error> {
     let need = voxels * windows::BYTES_PER_WINDOW_VOXEL;
@@ -270,6 +316,13 @@ pub(super) fn run_repair(
     let chi_tidy = chi;
     let mut windowed = Tally::default();
     let mut history = Vec::new();
+    // A large grid: the compact cut, without closings.
+    let compact = env.spec.num_voxels() > COMPACT_ABOVE.with(Cell::get);
+    if compact && chi != 1 {
+        let solid = solid_voxels + tally.added - tally.speck_voxels;
+        compact_cut(env, &mut tally, solid, chi)?;
+        chi = 1;
+    }
     for _ in 0..MAX_ROUNDS {
         if chi == 1 {
             break;
