@@ -6,7 +6,8 @@
 //! 2. enclosed background (cavities) filled ([`components`] on the background);
 //! 3. pieces of the solid counted ([`components`] on the solid), and the Euler
 //!    characteristic ([`euler`]) gives the genus; a solid that is not one genus-0 piece
-//!    is repaired ([`repair`], growth through simple points, see [`simple`]) or
+//!    is repaired ([`repair`], growth through simple points, see [`simple`]; on large
+//!    grids [`compact`]) or
 //!    refused ([`topology`] decides which, from `--topology` and the input's own genus);
 //! 4. the center: the deepest voxel ([`center`]) or `--center` ([`center_ball`]);
 //! 5. the labels written to `RUN/labels/0` ([`classify`]).
