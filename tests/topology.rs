@@ -418,3 +418,78 @@ fn repaired_meshes_agree_with_the_winding_number_away_from_the_surface() {
         );
     }
 }
+
+/// The compact cut (the repair of grids over 32 Mi voxels, without closings), forced
+/// on small grids: the solid ends as one genus-0 piece, what is reported is what changed,
+/// and the result is the same bytes for 1 and 2 threads and for disk and memory.
+#[test]
+fn the_compact_cut_of_large_grids_repairs_a_small_one_forced_through_it() {
+    let mesh = torus(1.0, 0.35, 64, 32);
+    let repair = VoxelizeOptions {
+        topology: TopologyMode::Repair,
+        ..res(32)
+    };
+    let (draw, raw) = vox(
+        &mesh,
+        &VoxelizeOptions {
+            allow_genus: true,
+            ..res(32)
+        },
+    );
+    assert_eq!(raw.unwrap().genus, 1);
+    harmap::voxelize::compact_repair_above(Some(0));
+    let (drep, r) = vox(&mesh, &repair);
+    harmap::voxelize::compact_repair_above(None);
+    let r = r.unwrap();
+    assert_eq!((r.components, r.genus, r.euler_characteristic), (1, 0, 1));
+    let rep = r.repair.unwrap();
+    assert_eq!(
+        (rep.handles_cut, rep.handles_filled, rep.voxels_added),
+        (1, 0, 0)
+    );
+    assert_eq!(rep.method, "cut");
+    // The compact path tries no fill (the default path here reports one).
+    assert_eq!(rep.alternative_voxels, u64::MAX);
+    let changed = solid_differences(&labels_of(&draw), &labels_of(&drep));
+    assert_eq!(changed, rep.voxels_removed);
+    assert_eq!(rep.regions.iter().map(|g| g.voxels).sum::<u64>(), changed);
+    // One sheet across the tube: about a cross-section, pi 0.35^2 / h^2 voxels.
+    let h = r.grid.spacing;
+    let section = PI * (0.35 / h).powi(2);
+    assert!(
+        (changed as f64) > 0.5 * section && (changed as f64) < 2.5 * section,
+        "{changed} voxels removed; a cross-section has {section:.0}"
+    );
+
+    // A genus-0 mesh whose ends fuse, with a speck: the same bytes however run.
+    let ring = crate::common::merge(
+        &c_ring(1.0, 0.3, 0.02, 96, 24),
+        &sphere(Vec3::new(0.0, 0.0, 0.9), 0.06, 8, 16),
+    );
+    let run = |threads: usize, scratch: Scratch| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            harmap::voxelize::compact_repair_above(Some(0));
+            let (d, r) = vox(
+                &ring,
+                &VoxelizeOptions {
+                    scratch,
+                    chunk: 16,
+                    ..res(48)
+                },
+            );
+            harmap::voxelize::compact_repair_above(None);
+            let r = r.unwrap();
+            assert_eq!((r.components, r.genus), (1, 0));
+            let rep = r.repair.unwrap();
+            assert!(rep.handles_cut >= 1, "{rep:?}");
+            (labels_of(&d), rep.voxels_removed)
+        })
+    };
+    let a = run(1, Scratch::Memory);
+    assert!(a == run(2, Scratch::Memory), "1 and 2 threads differ");
+    assert!(a == run(2, Scratch::Disk), "disk and memory differ");
+}

@@ -66,7 +66,7 @@ pub fn edt_sq(feature: &[bool], shape: [usize; 3]) -> Vec<u32> {
 
 /// One-dimensional squared distance transform of the sampled function `f` (lower
 /// envelope of parabolas), into `d`.
-fn dt1d(f: &[f64], d: &mut [f64], v: &mut [usize], z: &mut [f64]) {
+pub(super) fn dt1d(f: &[f64], d: &mut [f64], v: &mut [usize], z: &mut [f64]) {
     let n = f.len();
     let mut k: isize = -1;
     for q in 0..n {

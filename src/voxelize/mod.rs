@@ -6,7 +6,8 @@
 //! 2. enclosed background (cavities) filled ([`components`] on the background);
 //! 3. pieces of the solid counted ([`components`] on the solid), and the Euler
 //!    characteristic ([`euler`]) gives the genus; a solid that is not one genus-0 piece
-//!    is repaired ([`repair`], growth through simple points, see [`simple`]) or
+//!    is repaired ([`repair`], growth through simple points, see [`simple`]; on large
+//!    grids [`compact`]) or
 //!    refused ([`topology`] decides which, from `--topology` and the input's own genus);
 //! 4. the center: the deepest voxel ([`center`]) or `--center` ([`center_ball`]);
 //! 5. the labels written to `RUN/labels/0` ([`classify`]).
@@ -18,6 +19,7 @@ mod center;
 mod center_ball;
 mod classify;
 pub mod closing;
+mod compact;
 mod components;
 pub mod cuts;
 mod error;
@@ -50,6 +52,8 @@ pub use grid_fit::{fit_bbox, fit_volume, DEFAULT_RESOLUTION, MAX_AXIS, MAX_VOXEL
 pub(crate) use options::scratch_grid;
 pub use probes::probe_summary;
 pub use report::{ProbeTrial, RepairRegion, TopologyRepair, VoxelizeReport};
+#[doc(hidden)]
+pub use rounds::compact_repair_above;
 pub use scanline::InsideRule;
 pub use stage::voxelize;
 pub use standard::{standard_ball, StandardBall};

@@ -101,6 +101,11 @@ impl Flat {
         ]
     }
 
+    /// The linear offset of the neighbourhood position `b`.
+    pub(super) fn offset(&self, b: usize) -> isize {
+        self.off[b]
+    }
+
     /// Whether voxel `i` is on a face of the grid.
     pub(super) fn on_face(&self, i: usize) -> bool {
         let [z, y, x] = self.zyx(i);
@@ -139,7 +144,7 @@ impl Flat {
 
     /// The 27-bit mask of the neighbours of `i` where `f` holds; outside the grid counts
     /// as `outside`.
-    fn mask(&self, i: usize, outside: bool, f: impl Fn(usize) -> bool) -> u32 {
+    pub(super) fn mask(&self, i: usize, outside: bool, f: impl Fn(usize) -> bool) -> u32 {
         let mut m = 0u32;
         if self.on_face(i) {
             let [z, y, x] = self.zyx(i).map(|c| c as isize);

@@ -1,15 +1,18 @@
 //! The topology repair's rounds: specks and cavities tidied, then rounds of windows
 //! around the handles that closings find (see [`super::windows`]), larger closings when
-//! a round removes none, and the whole-grid repair ([`super::repair`]) for what the
-//! windows leave, checked and tallied for the report. [`super::topology`] decides
-//! whether to repair; this file does it.
+//! a round removes none, and for what the windows leave the whole-grid repair
+//! ([`super::repair`], grids up to 8 Mi voxels) or the compact cut ([`super::compact`],
+//! larger grids); checked and tallied for the report. Grids over 32 Mi voxels go
+//! straight to the compact cut, without closings. [`super::topology`] decides whether
+//! to repair; this file does it.
 
+use std::cell::Cell;
 use std::time::Instant;
 
 use super::topology::{measure, summary, ClosingGrid, Env};
 use super::{
-    closing, components, euler, repair, windows, RepairRegion, TopologyRepair, VoxelizeError,
-    HANDLE_PROBE, HANDLE_PROBE_ANGSTROM,
+    closing, compact, components, euler, repair, windows, RepairRegion, TopologyRepair,
+    VoxelizeError, HANDLE_PROBE, HANDLE_PROBE_ANGSTROM,
 };
 use crate::grid::human;
 use crate::input::Shape;
@@ -18,16 +21,32 @@ use crate::math::Idx3;
 /// Rounds of windowed repair before the whole-grid fallback.
 const MAX_ROUNDS: usize = 12;
 
-/// The largest grid the repair takes whole (after the windows), in voxels: 8 Mi voxels,
-/// 128 MiB at [`repair::BYTES_PER_VOXEL`]. Fixed, so that the result never depends on
-/// `--mem`.
+/// The largest grid the repair takes whole in memory (after the windows), in voxels: 8
+/// Mi voxels, 192 MiB at [`repair::BYTES_PER_VOXEL`], with the choice of cut or fill.
+/// Larger grids whose handles the windows and the larger closings leave get the compact
+/// cut. Fixed, so that the result never depends on `--mem`.
 const WHOLE_GRID_VOXELS: u64 = 1 << 23;
 
-/// The largest grid the repair takes whole when the windows and the larger closings
-/// leave handles (on larger grids that is a refusal): 32 Mi voxels, 768 MiB at
-/// [`repair::BYTES_PER_VOXEL`], refused with "give more --mem" when `--mem` leaves less.
-/// Fixed, so that the result never depends on `--mem`: it is this repair or a refusal.
-const WHOLE_GRID_FALLBACK_VOXELS: u64 = 1 << 25;
+/// Grids of more voxels than this (32 Mi) get the compact cut at once: no windows and
+/// no closings, whose passes over so large a grid cost more than the cut and whose
+/// windows miss tunnels wider than the closing (a protein's). Fixed, so that the result
+/// never depends on `--mem`.
+const NO_CLOSING_ABOVE: u64 = 1 << 25;
+
+thread_local! {
+    /// Grids of more voxels than this get the compact cut ([`compact`]) instead of the
+    /// windows, closings and the grid-wide repair: [`NO_CLOSING_ABOVE`] but in
+    /// the tests that lower it ([`compact_repair_above`]).
+    static COMPACT_ABOVE: Cell<u64> = const { Cell::new(NO_CLOSING_ABOVE) };
+}
+
+/// For tests: the repairs that this thread runs from now on take the compact cut on
+/// grids of more than `voxels` voxels (None: the default, 32 Mi voxels), so that a small
+/// grid can go through it.
+#[doc(hidden)]
+pub fn compact_repair_above(voxels: Option<u64>) {
+    COMPACT_ABOVE.with(|c| c.set(voxels.unwrap_or(NO_CLOSING_ABOVE)));
+}
 
 /// What the repair has changed so far.
 #[derive(Default)]
@@ -224,6 +243,36 @@ fn round(
     Ok(closes)
 }
 
+/// The compact cut of the whole solid (`solid` voxels after the tidying), when it fits
+/// in what `--mem` leaves, of the solid with Euler characteristic `chi`; tallied.
+fn compact_cut(env: &Env, tally: &mut Tally, solid: u64, chi: i64) -> Result<(), crate::Error> {
+    let voxels = env.spec.num_voxels();
+    let need = compact::bytes_needed(voxels, solid);
+    if need > env.room {
+        return Err(VoxelizeError::Topology(format!(
+            "{}: the topology repair of a grid of {voxels} voxels, {solid} of them solid, holds {} ({} bytes a voxel of the grid and {} a solid voxel), more than the {} --mem {} leaves; give more --mem, a coarser grid, or --topology strict / --allow-genus",
+            env.source_name,
+            human(need),
+            compact::BYTES_PER_GRID_VOXEL,
+            compact::BYTES_PER_SOLID_VOXEL,
+            human(env.room),
+            env.opts.mem
+        ))
+        .into());
+    }
+    let surface = match env.shape {
+        Shape::Mesh(m) => Some((m, env.spec)),
+        _ => None,
+    };
+    let o = compact::cut(env.solid, surface)?;
+    tally.removed += o.removed;
+    tally.cut += 1 - chi;
+    // The fill is not tried on this path.
+    tally.alternative = u64::MAX;
+    tally.regions.extend(o.regions);
+    Ok(())
+}
+
 /// Refuse a window that does not fit in what `--mem` leaves.
 fn check_room(env: &Env, voxels: u64) -> Result<(), crate::Error> {
     let need = voxels * windows::BYTES_PER_WINDOW_VOXEL;
@@ -259,10 +308,6 @@ pub(super) fn run_repair(
     let mut probe = probe_radius(env);
     let first_probe = probe;
     let max_probe = probe.max(8) * 8;
-    // The largest closing tried, and the one that did not fit in --mem if that ended
-    // the ladder.
-    let mut tried = probe;
-    let mut too_big: Option<(u32, String)> = None;
     // A grid this small is repaired whole when windows around the voxel-scale handles
     // leave some; a larger one tries larger closings and windows first.
     let whole_grid = env.spec.num_voxels() <= WHOLE_GRID_VOXELS;
@@ -270,6 +315,13 @@ pub(super) fn run_repair(
     let chi_tidy = chi;
     let mut windowed = Tally::default();
     let mut history = Vec::new();
+    // A large grid: the compact cut, without closings.
+    let compact = env.spec.num_voxels() > COMPACT_ABOVE.with(Cell::get);
+    if compact && chi != 1 {
+        let solid = solid_voxels + tally.added - tally.speck_voxels;
+        compact_cut(env, &mut tally, solid, chi)?;
+        chi = 1;
+    }
     for _ in 0..MAX_ROUNDS {
         if chi == 1 {
             break;
@@ -277,16 +329,14 @@ pub(super) fn run_repair(
         let removed = match round(env, closing_grid, probe, &mut windowed, &mut history) {
             Ok(n) => n,
             // A closing larger than the first that does not fit in --mem ends the
-            // ladder: the refusal below says what is left, not that the budget is short.
-            Err(crate::Error::Grid(crate::grid::GridError::Budget { needed, .. }))
+            // ladder: the compact cut below takes what is left.
+            Err(crate::Error::Grid(crate::grid::GridError::Budget { .. }))
                 if probe > first_probe =>
             {
-                too_big = Some((probe, needed));
                 break;
             }
             Err(e) => return Err(e),
         };
-        tried = probe;
         chi = euler::euler_characteristic(env.solid, env.w_ccl)?;
         if removed == 0 {
             if whole_grid {
@@ -300,24 +350,22 @@ pub(super) fn run_repair(
         }
     }
     if chi != 1 {
-        // Handles the windows did not remove: the whole grid, when it fits.
-        let need = env.spec.num_voxels() * repair::BYTES_PER_VOXEL;
-        if env.spec.num_voxels() > WHOLE_GRID_FALLBACK_VOXELS {
-            let budget = too_big.as_ref().map_or(String::new(), |(r, needed)| {
-                format!(
-                    " (a closing by {r} voxels would need {needed}, more than --mem {})",
-                    env.opts.mem
-                )
-            });
-            return Err(VoxelizeError::Topology(format!(
-                "{}: the voxel solid has {ncomp} piece(s) and genus {genus}; the repair in windows around the handles (found by closings of up to {tried} voxels{budget}) left genus {}: tunnels too wide for a local repair, on a grid of {} voxels, more than the {} the repair takes whole; use --close VOXELS, a coarser grid, or --topology strict / --allow-genus",
-                env.source_name,
-                1 - chi,
-                env.spec.num_voxels(),
-                WHOLE_GRID_FALLBACK_VOXELS
-            ))
-            .into());
+        // Handles the windows did not remove: the whole solid, from before the windows
+        // (the whole-grid repair replaces them).
+        for (origin, wshape, before) in history.iter().rev() {
+            windows::write_window(env.solid, *origin, *wshape, before)?;
         }
+        windowed = Tally::default();
+        chi = chi_tidy;
+    }
+    if chi != 1 && !whole_grid {
+        // Larger than the grid-wide repair takes: the compact cut.
+        let solid = solid_voxels + tally.added - tally.speck_voxels;
+        compact_cut(env, &mut tally, solid, chi)?;
+        chi = 1;
+    }
+    if chi != 1 {
+        let need = env.spec.num_voxels() * repair::BYTES_PER_VOXEL;
         if need > env.room {
             return Err(VoxelizeError::Topology(format!(
                 "{}: the voxel solid has {ncomp} piece(s) and genus {genus}; the repair in windows around the handles left genus {}, and repairing the whole grid at once holds it in memory, {} ({} bytes a voxel), more than the {} --mem {} leaves; give more --mem, a coarser grid, or --topology strict / --allow-genus",
@@ -330,12 +378,6 @@ pub(super) fn run_repair(
             ))
             .into());
         }
-        // From the solid before the windows: the whole-grid repair replaces them.
-        for (origin, wshape, before) in history.iter().rev() {
-            windows::write_window(env.solid, *origin, *wshape, before)?;
-        }
-        windowed = Tally::default();
-        chi = chi_tidy;
         let surface = match env.shape {
             Shape::Mesh(m) => Some((m, env.spec)),
             _ => None,

@@ -109,14 +109,17 @@ pub fn mesh_band(mesh: &TriMesh, spec: &GridSpec, origin: Idx3, shape: [usize; 3
 pub fn depths(edt: &[u32], near: &[f32]) -> Vec<u32> {
     edt.iter()
         .enumerate()
-        .map(|(i, &e)| {
-            let e = (f64::from(e) * SCALE).min(f64::from(u32::MAX));
-            let d = near
-                .get(i)
-                .map_or(f64::INFINITY, |&d| f64::from(d) * f64::from(d) * SCALE);
-            e.min(d).round() as u32
-        })
+        .map(|(i, &e)| depth_of(e, near.get(i).copied().unwrap_or(f32::INFINITY)))
         .collect()
+}
+
+/// One voxel's depth: its squared distance transform `e`, or its squared distance to the
+/// mesh `near` (infinity: none) where that is less, in units of 1/[`SCALE`].
+#[must_use]
+pub fn depth_of(e: u32, near: f32) -> u32 {
+    let e = (f64::from(e) * SCALE).min(f64::from(u32::MAX));
+    let d = f64::from(near) * f64::from(near) * SCALE;
+    e.min(d).round() as u32
 }
 
 /// Voxels where `new` differs from `solid` whose center is more than a voxel from the
