@@ -150,3 +150,162 @@ fn crambin_on_one_two_and_three_ranks_is_the_same_bytes_as_one_process() {
     };
     same_bytes_on_ranks(&pdb, &["--spacing", "0.5"], &[1, 2, 3]);
 }
+
+/// The harmap processes below `pid` (mpiexec's ranks, under its process proxy).
+fn ranks_below(pid: u32) -> Vec<u32> {
+    let parent_of = |p: u32| -> Option<u32> {
+        let stat = std::fs::read_to_string(format!("/proc/{p}/stat")).ok()?;
+        // pid (comm) state ppid ...: the comm may hold spaces, the fields after it not.
+        stat.rsplit_once(')')?
+            .1
+            .split_whitespace()
+            .nth(1)?
+            .parse()
+            .ok()
+    };
+    let mut out = Vec::new();
+    for e in std::fs::read_dir("/proc")
+        .expect("/proc")
+        .filter_map(Result::ok)
+    {
+        let Some(p) = e.file_name().to_str().and_then(|s| s.parse::<u32>().ok()) else {
+            continue;
+        };
+        let comm = std::fs::read_to_string(format!("/proc/{p}/comm")).unwrap_or_default();
+        if comm.trim() != "harmap" {
+            continue;
+        }
+        let mut q = p;
+        while let Some(up) = parent_of(q).filter(|&u| u > 1) {
+            if up == pid {
+                out.push(p);
+                break;
+            }
+            q = up;
+        }
+    }
+    out.sort_unstable();
+    out
+}
+
+/// A rank killed during the solve ends the job on every rank, non-zero, within 30 s;
+/// the solve resumed on 2 ranks (and on 3) from the checkpoint gives the bytes of an
+/// uninterrupted solve in one process.
+#[test]
+fn a_killed_rank_ends_the_job_and_the_resumed_solve_gives_the_same_phi() {
+    let Some(mpiexec) = mpiexec() else { return };
+    let Some(spot) = shared_data("meshes/spot.obj") else {
+        return;
+    };
+    let _one = JOBS
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let dir = tempfile::tempdir().unwrap();
+    let solve = [
+        "--method",
+        "sor",
+        "--rtol",
+        "1e-12",
+        "--max-iter",
+        "120",
+        "--checkpoint-every",
+        "0.2",
+    ];
+    let voxelized = |name: &str| {
+        let out = dir.path().join(name);
+        let o = out.to_str().unwrap().to_owned();
+        run(
+            &mpiexec,
+            0,
+            &[
+                "voxelize",
+                spot.to_str().unwrap(),
+                "-o",
+                &o,
+                "--resolution",
+                "64",
+            ],
+        );
+        o
+    };
+    let reference = voxelized("ref.harmap");
+    run(
+        &mpiexec,
+        0,
+        &[&["solve", reference.as_str()][..], &solve].concat(),
+    );
+    let phi = |r: &str| {
+        let run = RunDir::open(Path::new(r)).unwrap();
+        image::<f64>(&run, "phi", f64::NAN)
+    };
+    let want = phi(&reference);
+    for resume_on in [2, 3] {
+        let killed = voxelized(&format!("killed{resume_on}.harmap"));
+        let mut child = Command::new(&mpiexec)
+            .args([
+                "-n",
+                "3",
+                harmap(),
+                "-q",
+                "--progress",
+                "never",
+                "solve",
+                &killed,
+            ])
+            .args(solve)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .expect("start mpiexec");
+        // Kill rank 1 once a checkpoint is there.
+        let manifest = Path::new(&killed).join("solve").join("manifest.json");
+        let t = std::time::Instant::now();
+        while !manifest.exists() {
+            assert!(t.elapsed().as_secs() < 120, "no checkpoint after 120 s");
+            assert!(
+                child.try_wait().unwrap().is_none(),
+                "the solve ended before a checkpoint"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        let ranks = ranks_below(child.id());
+        assert_eq!(ranks.len(), 3, "three ranks under mpiexec: {ranks:?}");
+        let killed_at = std::time::Instant::now();
+        let k = Command::new("kill")
+            .args(["-9", &ranks[1].to_string()])
+            .status()
+            .unwrap();
+        assert!(k.success());
+        let status = loop {
+            if let Some(s) = child.try_wait().unwrap() {
+                break s;
+            }
+            assert!(
+                killed_at.elapsed().as_secs() < 30,
+                "the job still runs 30 s after a rank was killed"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        };
+        assert!(
+            !status.success(),
+            "mpiexec exited 0 after a rank was killed"
+        );
+        // (A rank's entry goes once its parent has reaped it.)
+        let gone = || {
+            ranks
+                .iter()
+                .all(|p| !Path::new(&format!("/proc/{p}")).exists())
+        };
+        while !gone() && killed_at.elapsed().as_secs() < 30 {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        assert!(gone(), "a rank outlived the job by 30 s");
+        run(
+            &mpiexec,
+            resume_on,
+            &[&["solve", killed.as_str(), "--resume"][..], &solve].concat(),
+        );
+        let got = phi(&killed);
+        assert!(got == want, "resumed on {resume_on} ranks: phi differs");
+    }
+}

@@ -172,34 +172,45 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
 fn bench_solve(a: &Args, g: &Global) -> anyhow::Result<()> {
     use harmap::solve::solve;
     let opts = solve_options(a.mem, a.cycle);
-    println!(
-        "harmap bench solve: standard ball (radius 0.45 N, sink radius 2), multigrid --cycle {}, --mem {}, {} threads",
-        opts.cycle.kind.name(),
-        a.mem,
-        rayon::current_num_threads()
-    );
-    println!(
-        "{:>6} {:>9} {:>7} {:>8} {:>14} {:>10} {:>12}",
-        "N", "seconds", "cycles", "sweeps", "updates/s", "residual", "peak RSS"
-    );
+    // On MPI ranks rank 0 prints (the rank lines after each row are per rank).
+    let root = harmap::grid::world().is_root();
+    if root {
+        println!(
+            "harmap bench solve: standard ball (radius 0.45 N, sink radius 2), multigrid --cycle {}, --mem {}, {} threads{}",
+            opts.cycle.kind.name(),
+            a.mem,
+            rayon::current_num_threads(),
+            match harmap::grid::world().parts() {
+                1 => String::new(),
+                n => format!(", {n} MPI ranks"),
+            }
+        );
+        println!(
+            "{:>6} {:>9} {:>7} {:>8} {:>14} {:>10} {:>12}",
+            "N", "seconds", "cycles", "sweeps", "updates/s", "residual", "peak RSS"
+        );
+    }
     let bars = Bars::new(g);
     let stop = std::sync::atomic::AtomicBool::new(false);
     in_bench_dir(a.dir.as_ref(), |dir| {
         for &n in &a.n {
             let out = dir.join(format!("bench-solve-{n}.harmap"));
             let run = standard_ball(n, a.mem, &out, &bars)?;
-            let t = Instant::now();
+            let (t, sent) = (Instant::now(), harmap::grid::world().bytes_sent());
             let r = solve(&run, &opts, &stop, &bars)?;
             let secs = t.elapsed().as_secs_f64();
-            println!(
-                "{n:>6} {secs:>9.3} {:>7} {:>8.1} {:>14.3e} {:>10.2e} {:>12}",
-                r.iterations,
-                r.sweep_equivalents,
-                r.unknowns as f64 * r.sweep_equivalents / secs,
-                r.relative_residual,
-                harmap::grid::human(peak_rss())
-            );
-            if !a.keep {
+            if root {
+                println!(
+                    "{n:>6} {secs:>9.3} {:>7} {:>8.1} {:>14.3e} {:>10.2e} {:>12}",
+                    r.iterations,
+                    r.sweep_equivalents,
+                    r.unknowns as f64 * r.sweep_equivalents / secs,
+                    r.relative_residual,
+                    harmap::grid::human(peak_rss())
+                );
+            }
+            per_rank(t, sent)?;
+            if !a.keep && harmap::grid::world().is_root() {
                 std::fs::remove_dir_all(&out)?;
             }
         }
@@ -327,7 +338,45 @@ fn standard_ball(
         chunk: 64,
         mem,
     };
-    Ok(harmap::pipeline::standard_ball_run(&p, out, true, bars)?.0)
+    // On MPI ranks rank 0 makes the run alone; the others open it.
+    let w = harmap::grid::world();
+    if w.is_root() {
+        harmap::grid::solo(|| harmap::pipeline::standard_ball_run(&p, out, true, bars))?;
+    }
+    w.barrier()?;
+    Ok(harmap::run::RunDir::open(out)?)
+}
+
+/// On MPI ranks, each rank's seconds, bytes sent and peak resident memory since `t`
+/// and `sent` (bytes sent before), printed by rank 0 one line a rank. One process:
+/// nothing.
+fn per_rank(t: Instant, sent: u64) -> anyhow::Result<()> {
+    let w = harmap::grid::world();
+    if w.parts() == 1 {
+        return Ok(());
+    }
+    let mine = [
+        t.elapsed().as_secs_f64(),
+        (w.bytes_sent() - sent) as f64,
+        peak_rss() as f64,
+    ];
+    let all = w.all_gather_bytes(mine.iter().flat_map(|v| v.to_le_bytes()).collect())?;
+    if w.is_root() {
+        for (k, b) in all.iter().enumerate() {
+            let v: Vec<f64> = b
+                .chunks_exact(8)
+                .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
+                .collect();
+            println!(
+                "{:>6} rank {k}: {:.3} s, sent {}, peak RSS {}",
+                "",
+                v[0],
+                harmap::grid::human(v[1] as u64),
+                harmap::grid::human(v[2] as u64)
+            );
+        }
+    }
+    Ok(())
 }
 
 /// The benchmarks' solve: multigrid defaults with `cycle`, no checkpoints.
@@ -353,6 +402,9 @@ fn in_bench_dir(
     given: Option<&PathBuf>,
     f: impl FnOnce(&std::path::Path) -> anyhow::Result<()>,
 ) -> anyhow::Result<()> {
+    if given.is_none() && harmap::grid::world().parts() > 1 {
+        return Err(UsageError("on MPI ranks, give --dir: a folder every rank sees".into()).into());
+    }
     let d = given.cloned().unwrap_or_else(|| {
         std::env::temp_dir().join(format!("harmap-bench-{}", std::process::id()))
     });
