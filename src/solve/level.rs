@@ -194,6 +194,37 @@ impl Boxed {
 }
 
 impl Level {
+    /// Per block, whether it holds an unknown (this process's blocks; built on first
+    /// use, again after [`super::flat::Cache::mask_replaced`]).
+    pub(super) fn occupied(
+        &self,
+        blocks: &super::blocks::BlockLoop<'_>,
+    ) -> Result<&[bool], GridError> {
+        self.flat.occupied(|| {
+            let mut out = vec![false; self.spec.num_blocks() as usize];
+            for (b, any) in blocks.map(&self.spec, |b| {
+                Ok(self
+                    .mask
+                    .read_block(b)?
+                    .iter()
+                    .any(|&m| super::cuts::is_unknown(m)))
+            })? {
+                out[self.spec.block_linear(b) as usize] = any;
+            }
+            Ok(out)
+        })
+    }
+
+    /// Zero the right-hand side and the correction of this (coarse) level's block `b`.
+    pub(super) fn zero_block(&self, b: Idx3) -> Result<(), GridError> {
+        let n = volume(self.spec.block_shape(b)) as usize;
+        let zeros = vec![0.0; n];
+        if let Some(f) = &self.f {
+            f.write_block(b, &zeros)?;
+        }
+        self.u[0].write_block(b, &zeros)
+    }
+
     /// Read `u[src]`, the mask and f over the box `[origin, origin + shape)`; outside the
     /// grid u and f read 0 and nothing is an unknown.
     pub(super) fn read_box(

@@ -14,6 +14,7 @@
 //! - [`flat`]: the same passes on levels held in memory as whole arrays;
 //! - [`multigrid`]: the V-cycle over the levels;
 //! - [`driver`]: the iteration loop of the three methods;
+//! - [`deepen`]: relative accuracy where u is tiny, by multigrid on shrinking regions;
 //! - [`polish`]: relative accuracy where u = 1 - phi is tiny (thin parts);
 //! - [`blocks`]: how passes visit blocks (the decomposition seam, below);
 //! - [`plan`]: what lives in memory under the budget;
@@ -55,6 +56,7 @@ pub mod boxops;
 pub mod checkpoint;
 pub mod coarsen;
 pub mod cuts;
+pub mod deepen;
 pub mod dirichlet;
 pub mod driver;
 mod error;
@@ -71,6 +73,7 @@ pub mod stage;
 pub mod stencil;
 pub mod transfer;
 
+pub use deepen::{DeepenOptions, DeepenReport};
 pub use driver::{Method, StopReason};
 pub use error::SolveError;
 pub use multigrid::{Cycle, CycleOptions};

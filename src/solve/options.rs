@@ -2,6 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::deepen::DeepenOptions;
 use super::driver::Method;
 use super::multigrid::{Cycle, CycleOptions};
 use super::polish::PolishOptions;
@@ -26,7 +27,10 @@ pub struct SolveOptions {
     pub omega: Option<f64>,
     /// Multigrid cycle.
     pub cycle: CycleOptions,
-    /// Relaxing the tiny values after the solve.
+    /// Multigrid on the regions where u is tiny, after the solve.
+    #[serde(default)]
+    pub deepen: DeepenOptions,
+    /// Relaxing the tiny values after the solve (below the last deepening stage).
     pub polish: PolishOptions,
     /// Memory budget.
     #[serde(skip)]
@@ -60,6 +64,7 @@ impl Default for SolveOptions {
             max_iter: 1000,
             omega: None,
             cycle: CycleOptions::default(),
+            deepen: DeepenOptions::default(),
             polish: PolishOptions::default(),
             mem: MemBudget::default(),
             checkpoint_every: 300.0,

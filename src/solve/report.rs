@@ -2,6 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::deepen::DeepenReport;
 use super::driver::{Method, StopReason};
 use super::polish::PolishReport;
 
@@ -36,6 +37,9 @@ pub struct SolveReport {
     pub workers: usize,
     /// Levels held in memory (the rest in scratch files).
     pub in_memory: Vec<bool>,
+    /// Multigrid on the regions where u is tiny, after the solve.
+    #[serde(default)]
+    pub deepen: DeepenReport,
     /// The relaxation of tiny values after the solve.
     pub polish: PolishReport,
 }

@@ -150,7 +150,24 @@ impl Level {
         pass: &Smooth<'_>,
         blocks: &BlockLoop<'_>,
     ) -> Result<PassStats, GridError> {
-        let st = blocks.stats(&self.spec, |b| self.smooth_block(b, pass))?;
+        // A block without unknowns is copied unchanged, so once both generations agree
+        // on such blocks the pass need not visit them (the fused restriction's coarse
+        // block under it has no unknowns either: its right-hand side and correction
+        // are zero).
+        let occupied = self.occupied(blocks)?;
+        let skip = self.flat.synced() && pass.src != pass.dst;
+        let st = blocks.stats(&self.spec, |b| {
+            if skip && !occupied[self.spec.block_linear(b) as usize] {
+                if let Some(c) = pass.restrict_into {
+                    c.zero_block(b)?;
+                }
+                return Ok(PassStats::default());
+            }
+            self.smooth_block(b, pass)
+        })?;
+        if pass.src != pass.dst {
+            self.flat.set_synced();
+        }
         blocks.exchange(
             &self.field(&format!("u{}", pass.dst)),
             &*self.u[pass.dst],

@@ -15,6 +15,7 @@ use super::blocks::BlockLoop;
 use super::checkpoint::{identity, Checkpoints};
 use super::coarsen::coarse_specs;
 use super::cuts::fine_mask;
+use super::deepen::DeepenReport;
 use super::dirichlet::initialize;
 use super::driver::{Decision, History, Iteration, Method, StopReason};
 use super::error::SolveError;
@@ -22,7 +23,7 @@ use super::level::Level;
 use super::multigrid::{pass_halo, Hierarchy, Scratch};
 use super::options::SolveOptions;
 use super::plan::plan_memory;
-use super::polish::PolishReport;
+use super::polish::{PolishOptions, PolishReport};
 use super::report::SolveReport;
 use crate::grid::{human, BlockStore, Compression, Decomposition, GridError, GridSpec};
 use crate::progress::Progress;
@@ -59,7 +60,7 @@ pub fn solve_with(
     run.require_stage("voxelize")?;
     let spec = run.grid()?;
     let dir = run.checkpoint_dir();
-    let setup = build(run, &spec, opts, decomp, &dir, progress)?;
+    let mut setup = build(run, &spec, opts, decomp, &dir, progress)?;
     let h = &setup.h;
     let it = Iteration::new(h, opts.method, opts.omega);
     let t_setup = t0.elapsed().as_secs_f64();
@@ -80,15 +81,26 @@ pub fn solve_with(
         }
         .into());
     }
-    let polish = polish_tiny(
+    let (work, cycle_work) = (it.work(&hist), it.sweeps_per_iteration());
+    let checkpointed = ck.written > 0 || resumed_at.is_some();
+    let deep = deepen_tiny(
         run,
-        h,
+        &mut setup.h,
         opts,
         &hist,
-        ck.written > 0 || resumed_at.is_some(),
+        cycle_work,
+        checkpointed,
         stop,
         progress,
     )?;
+    let h = &setup.h;
+    let t_deepen = t0.elapsed().as_secs_f64();
+    // Below the last stage's reach (all of the tiny values without stages).
+    let threshold = deep
+        .stages
+        .last()
+        .map_or(opts.polish.threshold, |s| s.threshold * opts.deepen.factor);
+    let polish = polish_tiny(run, h, opts, threshold, &hist, checkpointed, stop, progress)?;
     let t_polish = t0.elapsed().as_secs_f64();
     write_phi(run, &spec, &*h.levels[0].u[hist.cur], &h.blocks, progress)?;
     let report = SolveReport {
@@ -101,11 +113,12 @@ pub fn solve_with(
         max_change_history: hist.max_change.clone(),
         unknowns: hist.unknowns,
         levels: setup.levels,
-        sweep_equivalents: it.work(&hist),
+        sweep_equivalents: work + deep.sweep_equivalents,
         resumed_at,
         checkpoints: ck.written,
         workers: h.blocks.workers,
         in_memory: setup.in_memory,
+        deepen: deep,
         polish,
     };
     // The scratch stores go before phi and u are renamed into place.
@@ -114,10 +127,11 @@ pub fn solve_with(
     run.commit_image("phi")?;
     let seconds = t0.elapsed().as_secs_f64();
     progress.info(&format!(
-        "solve: seconds: setup {t_setup:.2}, {} {:.2}, polish {:.2}, writing {:.2}",
+        "solve: seconds: setup {t_setup:.2}, {} {:.2}, deepen {:.2}, polish {:.2}, writing {:.2}",
         opts.method.name(),
         t_iter - t_setup,
-        t_polish - t_iter,
+        t_deepen - t_iter,
+        t_polish - t_deepen,
         seconds - t_polish
     ));
     run.record_stage("solve", seconds, opts, &report)?;
@@ -433,10 +447,12 @@ fn agree(
 
 /// Relative accuracy where u is tiny (thin parts of the shape), after the iterations.
 /// `checkpointed`: whether a checkpoint exists to resume from if stopped now.
+#[allow(clippy::too_many_arguments)] // the run, the levels, the options, the threshold and the callbacks
 fn polish_tiny(
     run: &RunDir,
     h: &Hierarchy<'_>,
     opts: &SolveOptions,
+    threshold: f64,
     hist: &History,
     checkpointed: bool,
     stop: &AtomicBool,
@@ -448,7 +464,10 @@ fn polish_tiny(
         &*fine.u[hist.cur],
         &*fine.mask,
         fine.cuts.as_deref(),
-        &opts.polish,
+        &PolishOptions {
+            threshold,
+            ..opts.polish
+        },
         opts.mem.work_bytes() / 2,
         &h.blocks,
         &|| stop.load(Ordering::SeqCst),
@@ -456,22 +475,7 @@ fn polish_tiny(
     )?;
     progress.finish();
     if polish.interrupted {
-        let then = if checkpointed {
-            format!(
-                "continue from the last checkpoint with `harmap solve {} --resume`",
-                run.root().display()
-            )
-        } else {
-            format!(
-                "no checkpoint was written yet; start again with `harmap solve {}`",
-                run.root().display()
-            )
-        };
-        return Err(SolveError::InterruptedPolish {
-            iterations: hist.iterations,
-            then,
-        }
-        .into());
+        return Err(interrupted_after(run, hist, checkpointed));
     }
     if polish.voxels > 0 {
         progress.info(&format!(
@@ -480,6 +484,63 @@ fn polish_tiny(
         ));
     }
     Ok(polish)
+}
+
+/// The error of a solve stopped after its iterations (deepening or polishing).
+fn interrupted_after(run: &RunDir, hist: &History, checkpointed: bool) -> crate::Error {
+    let then = if checkpointed {
+        format!(
+            "continue from the last checkpoint with `harmap solve {} --resume`",
+            run.root().display()
+        )
+    } else {
+        format!(
+            "no checkpoint was written yet; start again with `harmap solve {}`",
+            run.root().display()
+        )
+    };
+    SolveError::InterruptedPolish {
+        iterations: hist.iterations,
+        then,
+    }
+    .into()
+}
+
+/// Relative accuracy where u is tiny, by multigrid on the regions below falling
+/// thresholds ([`super::deepen`]), after the iterations (multigrid only).
+#[allow(clippy::too_many_arguments)] // the run, the levels, the options and the callbacks
+fn deepen_tiny(
+    run: &RunDir,
+    h: &mut Hierarchy<'_>,
+    opts: &SolveOptions,
+    hist: &History,
+    cycle_work: f64,
+    checkpointed: bool,
+    stop: &AtomicBool,
+    progress: &dyn Progress,
+) -> Result<DeepenReport, crate::Error> {
+    if opts.method != Method::Multigrid {
+        return Ok(DeepenReport::default());
+    }
+    progress.start("solve: deepening tiny values", 0);
+    let deep = super::deepen::deepen(
+        h,
+        &opts.deepen,
+        cycle_work,
+        &|| stop.load(Ordering::SeqCst),
+        progress,
+    )?;
+    progress.finish();
+    if deep.interrupted {
+        return Err(interrupted_after(run, hist, checkpointed));
+    }
+    for s in &deep.stages {
+        progress.info(&format!(
+            "solve: {} values below {:.0e} in {} cycles (last change {:.1e})",
+            s.voxels, s.threshold, s.cycles, s.last_change
+        ));
+    }
+    Ok(deep)
 }
 
 /// Write phi = 1 - u for users and u itself (the precise one, for the stages after),

@@ -74,7 +74,12 @@ impl Level {
             f.correction_energy(&c)
         } else {
             let spec = &self.spec;
+            let occupied = self.occupied(blocks)?;
             blocks.sum(spec, |b| {
+                // No unknowns, no energy.
+                if !occupied[spec.block_linear(b) as usize] {
+                    return Ok(0.0);
+                }
                 let (origin, shape, _) = box_of(spec, b, 1);
                 let mask = self.mask.read_region(origin, shape, 0)?;
                 let (clo, cshape) = coarse_cover(origin, shape);

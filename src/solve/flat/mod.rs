@@ -47,6 +47,13 @@ pub struct Cache {
     planes: Pool<Vec<f64>>,
     prolong: Pool<PlanePair>,
     energy: Pool<(PlanePair, Vec<Vec<f64>>)>,
+    /// Per block of the level: whether it holds an unknown (for the block passes,
+    /// which skip the others once `synced`).
+    occupied: std::sync::OnceLock<Vec<bool>>,
+    /// On the blocks without unknowns both generations are equal: set by a block pass
+    /// from one generation into the other over every block; cleared by
+    /// [`Cache::state_replaced`].
+    synced: AtomicBool,
     /// Both generations hold the fixed values: set by the first pre-smoothing, which
     /// writes generation 1 whole (post-smoothing swaps the two); cleared by
     /// [`Cache::state_replaced`].
@@ -70,6 +77,37 @@ impl Cache {
     /// from a checkpoint): the next pre-smoothing writes generation 1 whole again.
     pub fn state_replaced(&self) {
         self.fixed_in_both.store(false, Ordering::Relaxed);
+        self.synced.store(false, Ordering::Relaxed);
+    }
+
+    /// Whether both generations are equal on the blocks without unknowns.
+    pub(crate) fn synced(&self) -> bool {
+        self.synced.load(Ordering::Relaxed)
+    }
+
+    /// A block pass from one generation into the other visited every block.
+    pub(crate) fn set_synced(&self) {
+        self.synced.store(true, Ordering::Relaxed);
+    }
+
+    /// Per block, whether it holds an unknown: `make` builds it on first use.
+    pub(crate) fn occupied(
+        &self,
+        make: impl FnOnce() -> Result<Vec<bool>, crate::grid::GridError>,
+    ) -> Result<&[bool], crate::grid::GridError> {
+        if let Some(o) = self.occupied.get() {
+            return Ok(o);
+        }
+        let o = make()?;
+        Ok(self.occupied.get_or_init(|| o))
+    }
+
+    /// The level's mask was rewritten: the runs of its unknowns are built again on
+    /// next use, and the next pre-smoothing writes generation 1 whole.
+    pub fn mask_replaced(&mut self) {
+        self.runs = std::sync::OnceLock::new();
+        self.occupied = std::sync::OnceLock::new();
+        self.state_replaced();
     }
 }
 
