@@ -116,6 +116,19 @@ fn hold_above(h: &Hierarchy<'_>, t: f64) -> Result<u64, GridError> {
     Ok(left)
 }
 
+/// The unknowns of the finest level whose u (generation 0) is below `t`.
+fn count_below(h: &Hierarchy<'_>, t: f64) -> Result<u64, GridError> {
+    let fine = &h.levels[0];
+    let n = h.blocks.sum(&fine.spec, |b| {
+        let (m, u) = (fine.mask.read_block(b)?, fine.u[0].read_block(b)?);
+        Ok(m.iter()
+            .zip(&u)
+            .filter(|(&m, &u)| is_unknown(m) && u < t)
+            .count() as f64)
+    })?;
+    Ok(n as u64)
+}
+
 /// Give the held unknowns of the finest level their mask values back.
 fn release(h: &Hierarchy<'_>) -> Result<(), GridError> {
     let fine = &h.levels[0];
@@ -166,6 +179,10 @@ pub fn deepen(
 ) -> Result<DeepenReport, GridError> {
     let mut report = DeepenReport::default();
     let mut t = opts.first;
+    // Most problems have no tiny values: then the mask is left alone.
+    if t < opts.last || h.levels.len() < 2 || count_below(h, t)? == 0 {
+        return Ok(report);
+    }
     while t >= opts.last && h.levels.len() > 1 {
         let voxels = hold_above(h, t)?;
         if voxels == 0 {

@@ -70,6 +70,19 @@ pub struct PolishOptions {
     /// Over-relaxation factor. 1.9, near the optimum of a region 60 voxels across,
     /// stalled down thin arms (cactus10k, the test tube); 1.6 converges on both.
     pub omega: f64,
+    /// Values below this count as converged whatever their relative change
+    /// ([`FLOOR`] by default; at least about 1e-300, above the subnormal numbers).
+    #[serde(default = "floor")]
+    pub floor: f64,
+    /// Start the region from the values it holds (clamped at 0) instead of 0: after
+    /// [`super::deepen`], which leaves them right to a small part of its last
+    /// threshold.
+    #[serde(default)]
+    pub from_values: bool,
+}
+
+fn floor() -> f64 {
+    FLOOR
 }
 
 impl Default for PolishOptions {
@@ -79,6 +92,8 @@ impl Default for PolishOptions {
             rel_change: 1e-9,
             max_sweeps: 20_000,
             omega: 1.6,
+            floor: FLOOR,
+            from_values: false,
         }
     }
 }
@@ -463,7 +478,8 @@ fn relax_block(
             .flatten()
             .chain(cut_lists.iter().flatten().map(|(h, _)| h))
         {
-            blk.data[h as usize] = 0.0;
+            let v = &mut blk.data[h as usize];
+            *v = if opts.from_values { v.max(0.0) } else { 0.0 };
         }
     }
     let start: Vec<f64> = on_face.iter().map(|&(h, _)| blk.data[h as usize]).collect();
@@ -486,7 +502,7 @@ fn relax_block(
                 let v = (1.0 - w) * old + w * ((k.defect(nb, 0.0)) / k.diag);
                 d[h] = v;
                 let scale = v.abs().max(old.abs());
-                if scale > FLOOR {
+                if scale > opts.floor {
                     change = change.max((v - old).abs() / scale);
                 }
             }
@@ -497,7 +513,7 @@ fn relax_block(
                 let v = (1.0 - w) * old + w * (s / 6.0);
                 d[h] = v;
                 let scale = v.abs().max(old.abs());
-                if scale > FLOOR {
+                if scale > opts.floor {
                     change = change.max((v - old).abs() / scale);
                 }
             }
@@ -512,7 +528,7 @@ fn relax_block(
     for (&(h, faces), &old) in on_face.iter().zip(&start) {
         let v = d[h as usize];
         let scale = v.abs().max(old.abs());
-        if scale > FLOOR && (v - old).abs() > opts.rel_change * scale {
+        if scale > opts.floor && (v - old).abs() > opts.rel_change * scale {
             for (f, moved) in visit.face_moved.iter_mut().enumerate() {
                 *moved |= faces >> f & 1 == 1;
             }

@@ -95,12 +95,28 @@ pub fn solve_with(
     )?;
     let h = &setup.h;
     let t_deepen = t0.elapsed().as_secs_f64();
-    // Below the last stage's reach (all of the tiny values without stages).
-    let threshold = deep
-        .stages
-        .last()
-        .map_or(opts.polish.threshold, |s| s.threshold * opts.deepen.factor);
-    let polish = polish_tiny(run, h, opts, threshold, &hist, checkpointed, stop, progress)?;
+    // Without stages, all of the tiny values from 0; after them, what is below the
+    // last stage's reach, from the values it left, down to far smaller values (the
+    // stages no longer carry the deep pockets' values down to the floor's neighbours).
+    let polish_opts = match deep.stages.last() {
+        None => opts.polish,
+        Some(s) => PolishOptions {
+            threshold: s.threshold * opts.deepen.factor,
+            floor: DEEP_FLOOR,
+            from_values: true,
+            ..opts.polish
+        },
+    };
+    let polish = polish_tiny(
+        run,
+        h,
+        opts,
+        &polish_opts,
+        &hist,
+        checkpointed,
+        stop,
+        progress,
+    )?;
     let t_polish = t0.elapsed().as_secs_f64();
     write_phi(run, &spec, &*h.levels[0].u[hist.cur], &h.blocks, progress)?;
     let report = SolveReport {
@@ -452,7 +468,7 @@ fn polish_tiny(
     run: &RunDir,
     h: &Hierarchy<'_>,
     opts: &SolveOptions,
-    threshold: f64,
+    polish_opts: &PolishOptions,
     hist: &History,
     checkpointed: bool,
     stop: &AtomicBool,
@@ -464,10 +480,7 @@ fn polish_tiny(
         &*fine.u[hist.cur],
         &*fine.mask,
         fine.cuts.as_deref(),
-        &PolishOptions {
-            threshold,
-            ..opts.polish
-        },
+        polish_opts,
         opts.mem.work_bytes() / 2,
         &h.blocks,
         &|| stop.load(Ordering::SeqCst),
@@ -485,6 +498,10 @@ fn polish_tiny(
     }
     Ok(polish)
 }
+
+/// The polish's floor after deepening: values below it count as converged (above the
+/// subnormal numbers, whose relative precision is coarse).
+const DEEP_FLOOR: f64 = 1e-290;
 
 /// The error of a solve stopped after its iterations (deepening or polishing).
 fn interrupted_after(run: &RunDir, hist: &History, checkpointed: bool) -> crate::Error {

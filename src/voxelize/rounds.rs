@@ -264,7 +264,7 @@ fn compact_cut(env: &Env, tally: &mut Tally, solid: u64, chi: i64) -> Result<(),
         Shape::Mesh(m) => Some((m, env.spec)),
         _ => None,
     };
-    let o = compact::cut(env.solid, surface)?;
+    let o = compact::cut(env.solid, surface, env.progress)?;
     tally.removed += o.removed;
     tally.cut += 1 - chi;
     // The fill is not tried on this path.
