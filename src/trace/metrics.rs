@@ -11,7 +11,6 @@
 //!   map from the surface triangle to its sphere triangle; 1 where angles are kept.
 
 use rayon::prelude::*;
-use std::collections::HashMap;
 
 use glam::{DVec2, DVec3};
 use serde::Serialize;
@@ -88,11 +87,22 @@ pub struct Indistinguishable {
 /// of a seed at another position.
 #[must_use]
 pub fn indistinguishable(positions: &[DVec3], theta: &[f64], psi: &[f64]) -> Indistinguishable {
-    let mut keyed: Vec<(u64, u64, usize)> = (0..theta.len())
-        .filter(|&i| theta[i].is_finite() && psi[i].is_finite())
-        // +0 and -0 are one stored direction.
-        .map(|i| ((theta[i] + 0.0).to_bits(), (psi[i] + 0.0).to_bits(), i))
-        .collect();
+    let arrived = |i: &usize| theta[*i].is_finite() && psi[*i].is_finite();
+    // 24 bytes a seed, allocated once.
+    let mut keyed: Vec<(u64, u64, u32)> =
+        Vec::with_capacity((0..theta.len()).filter(arrived).count());
+    keyed.extend(
+        (0..theta.len())
+            .filter(arrived)
+            // +0 and -0 are one stored direction.
+            .map(|i| {
+                (
+                    (theta[i] + 0.0).to_bits(),
+                    (psi[i] + 0.0).to_bits(),
+                    i as u32,
+                )
+            }),
+    );
     keyed.par_sort_unstable();
     let mut seeds = 0u64;
     let mut a = 0;
@@ -103,7 +113,10 @@ pub fn indistinguishable(positions: &[DVec3], theta: &[f64], psi: &[f64]) -> Ind
         }
         let group = &keyed[a..b];
         for &(_, _, i) in group {
-            if group.iter().any(|&(_, _, j)| positions[j] != positions[i]) {
+            if group
+                .iter()
+                .any(|&(_, _, j)| positions[j as usize] != positions[i as usize])
+            {
                 seeds += 1;
             }
         }
@@ -117,6 +130,10 @@ pub fn indistinguishable(positions: &[DVec3], theta: &[f64], psi: &[f64]) -> Ind
 
 /// Flips and distortion of the map `sphere[v]` (unit vectors; `None` where the seed did
 /// not reach the center) of a surface whose triangles face outward.
+///
+/// Two passes over the triangles, holding no per-triangle state but the distortion
+/// values whose quantiles it reports (8 bytes a measured triangle, one distribution at
+/// a time; [`SURFACE_TRIANGLE_BYTES`]).
 #[must_use]
 pub fn surface(
     positions: &[DVec3],
@@ -127,15 +144,27 @@ pub fn surface(
         triangles: triangles.len() as u64,
         ..SurfaceMetrics::default()
     };
-    let mut kept = Vec::new();
+    // A measured triangle with an orientation and area on the shape: its corners on the
+    // shape and on the sphere, and its two areas.
+    let kept = |t: &[u32; 3]| -> Option<(f64, f64, [DVec3; 3], [DVec3; 3])> {
+        let [a, b, c] = t.map(|i| i as usize);
+        let (sa, sb, sc) = (sphere[a]?, sphere[b]?, sphere[c]?);
+        if orientation(sa, sb, sc) == 0.0 {
+            return None;
+        }
+        let (pa, pb, pc) = (positions[a], positions[b], positions[c]);
+        let am = 0.5 * (pb - pa).cross(pc - pa).length();
+        let asph = 0.5 * (sb - sa).cross(sc - sa).length();
+        (am > 0.0).then_some((am, asph, [pa, pb, pc], [sa, sb, sc]))
+    };
     let (mut area_s, mut area_m) = (0.0, 0.0);
+    let mut count = 0usize;
     for t in triangles {
         let [a, b, c] = t.map(|i| i as usize);
         let (Some(sa), Some(sb), Some(sc)) = (sphere[a], sphere[b], sphere[c]) else {
             continue;
         };
         m.measured += 1;
-        let ns = (sb - sa).cross(sc - sa);
         let orient = orientation(sa, sb, sc);
         if orient == 0.0 {
             m.degenerate += 1;
@@ -144,26 +173,36 @@ pub fn surface(
         if orient < 0.0 {
             m.flipped += 1;
         }
-        let (pa, pb, pc) = (positions[a], positions[b], positions[c]);
-        let am = 0.5 * (pb - pa).cross(pc - pa).length();
-        let asph = 0.5 * ns.length();
-        if am <= 0.0 {
-            continue;
+        if let Some((am, asph, _, _)) = kept(t) {
+            area_s += asph;
+            area_m += am;
+            count += 1;
         }
-        area_s += asph;
-        area_m += am;
-        kept.push((am, asph, [pa, pb, pc], [sa, sb, sc]));
     }
-    let mut log_area = Vec::with_capacity(kept.len());
-    let mut conf = Vec::with_capacity(kept.len());
-    for (am, asph, p, s) in kept {
-        log_area.push(((asph / area_s) / (am / area_m)).ln());
-        conf.push(conformal_ratio(p, s));
-    }
-    m.log_area_ratio = Quantiles::of(log_area);
-    m.conformal = Quantiles::of(conf);
+    let mut values = Vec::with_capacity(count);
+    values.extend(
+        triangles
+            .iter()
+            .filter_map(kept)
+            .map(|(am, asph, _, _)| ((asph / area_s) / (am / area_m)).ln()),
+    );
+    m.log_area_ratio = Quantiles::of(values);
+    let mut values = Vec::with_capacity(count);
+    values.extend(
+        triangles
+            .iter()
+            .filter_map(kept)
+            .map(|(_, _, p, s)| conformal_ratio(p, s)),
+    );
+    m.conformal = Quantiles::of(values);
     m
 }
+
+/// Bytes [`collisions`] holds a seed (its cell and index).
+pub const COLLISION_SEED_BYTES: u64 = 16;
+
+/// Bytes [`surface`] holds a triangle, at most (one distortion value).
+pub const SURFACE_TRIANGLE_BYTES: u64 = 8;
 
 /// Positive where the flat triangle of sphere points `a, b, c` faces outward (counter-
 /// clockwise seen from outside), negative where it is flipped, zero when degenerate.
@@ -225,44 +264,39 @@ pub fn collisions(
     angle_deg: f64,
     far: f64,
 ) -> Collisions {
-    // A hash grid of cells of the chord length of the angle: neighbours within it are in
-    // the 27 cells around a point's cell.
+    // A grid of cells of the chord length of the angle: neighbours within it are in the
+    // 27 cells around a point's cell. The points sorted by cell (16 bytes a point,
+    // [`COLLISION_SEED_BYTES`]); the points of a row of three cells along z are one run
+    // of them, found by bisection.
     let chord = 2.0 * (angle_deg.to_radians() / 2.0).sin();
-    let cell = |p: DVec3| -> [i64; 3] { (p / chord).floor().as_i64vec3().to_array() };
-    // Points sorted by cell, and each cell's range of them (one allocation, not one per
-    // cell).
-    let mut sorted: Vec<([i64; 3], usize)> = sphere
-        .iter()
-        .enumerate()
-        .filter_map(|(i, s)| s.map(|s| (cell(s), i)))
-        .collect();
+    let cell = |p: DVec3| -> [i32; 3] { (p / chord).floor().as_ivec3().to_array() };
+    let mut sorted: Vec<([i32; 3], u32)> =
+        Vec::with_capacity(sphere.iter().filter(|s| s.is_some()).count());
+    sorted.extend(
+        sphere
+            .iter()
+            .enumerate()
+            .filter_map(|(i, s)| s.map(|s| (cell(s), i as u32))),
+    );
     sorted.par_sort_unstable();
-    let mut grid: HashMap<[i64; 3], (usize, usize), foldhash::fast::FixedState> =
-        HashMap::with_capacity_and_hasher(sorted.len(), foldhash::fast::FixedState::default());
-    for (k, &(c, _)) in sorted.iter().enumerate() {
-        grid.entry(c)
-            .and_modify(|r| r.1 = k + 1)
-            .or_insert((k, k + 1));
-    }
     let count = sphere
         .par_iter()
         .enumerate()
         .filter(|&(i, s)| {
             let Some(s) = s else { return false };
             let c = cell(*s);
-            for dz in -1..=1 {
+            for dx in -1..=1 {
                 for dy in -1..=1 {
-                    for dx in -1..=1 {
-                        let Some(&(a, b)) = grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
-                            continue;
-                        };
-                        for &(_, j) in &sorted[a..b] {
-                            if j != i
-                                && (sphere[j].expect("in the grid") - *s).length() <= chord
-                                && (positions[j] - positions[i]).length() > far
-                            {
-                                return true;
-                            }
+                    let row = [c[0] + dx, c[1] + dy];
+                    let first = sorted.partition_point(|&(k, _)| k < [row[0], row[1], c[2] - 1]);
+                    let end = sorted.partition_point(|&(k, _)| k <= [row[0], row[1], c[2] + 1]);
+                    for &(_, j) in &sorted[first..end] {
+                        let j = j as usize;
+                        if j != i
+                            && (sphere[j].expect("sorted") - *s).length() <= chord
+                            && (positions[j] - positions[i]).length() > far
+                        {
+                            return true;
                         }
                     }
                 }

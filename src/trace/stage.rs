@@ -234,6 +234,19 @@ impl Tracer {
         lines: u64,
         boundary: Boundary,
     ) -> Result<Self, crate::Error> {
+        Self::holding(run, opts, lines, 0, boundary)
+    }
+
+    /// [`Tracer::with_boundary`] next to `held` bytes that the caller keeps for the
+    /// whole trace (the seeds and their surface, [`held_bytes`]): the tiles get what
+    /// is left of the budget.
+    pub fn holding(
+        run: &RunDir,
+        opts: &TraceOptions,
+        lines: u64,
+        held: u64,
+        boundary: Boundary,
+    ) -> Result<Self, crate::Error> {
         let attrs = run.require_stage("solve")?;
         if !run.has_image("u") {
             return Err(options(format!(
@@ -258,8 +271,9 @@ impl Tracer {
         }
         let halo = Tiling::halo_for(&rk);
         let (tile_bytes, build_bytes, chunk_bytes) = footprint(edge, halo, u.spec());
-        // The lines in flight and the boundary's mesh index stay for the whole trace.
-        let line_bytes = lines * LINE_BYTES + boundary.bytes();
+        // The lines in flight, the boundary's mesh index and what the caller holds stay
+        // for the whole trace.
+        let line_bytes = lines * LINE_BYTES + boundary.bytes() + held;
         let threads = rayon::current_num_threads() as u64;
         // Every thread may be building a tile at once.
         let work = opts
@@ -334,6 +348,31 @@ impl Tracer {
 /// Bytes a streamline in flight holds (queues, outcome, ordering).
 pub const LINE_BYTES: u64 = 176;
 
+/// Bytes a seed holds beside its line while tracing: its point (24), surface vertex
+/// (4) and phi (8).
+pub const SEED_BYTES: u64 = 36;
+
+/// Bytes a seed holds at most after tracing, while [`trace`] measures and writes: its
+/// point (24), its row of the seed table (89), its sphere point (32) and the scratch of
+/// one measure at a time (the collision search's 16 or the indistinguishable search's
+/// 24). The tiles are gone by then, so this is within what the seed and its line held
+/// while tracing (checked at compile time).
+pub const END_SEED_BYTES: u64 = 24 + 89 + 32 + 24;
+const _: () = assert!(END_SEED_BYTES <= LINE_BYTES + SEED_BYTES);
+
+/// Bytes of the seeds and their surface that [`trace_seeds`] and [`trace`] hold for the
+/// whole trace, counted against `--mem` beside the lines: [`SEED_BYTES`] a seed, and for
+/// surface seeds the surface (a vertex 24, a triangle 12, and the surface measures'
+/// [`metrics::SURFACE_TRIANGLE_BYTES`]).
+#[must_use]
+pub fn held_bytes(seeds: u64, surface: Option<&crate::input::TriMesh>) -> u64 {
+    let mesh = surface.map_or(0, |m| {
+        m.vertices.len() as u64 * 24
+            + m.triangles.len() as u64 * (12 + metrics::SURFACE_TRIANGLE_BYTES)
+    });
+    seeds * SEED_BYTES + mesh
+}
+
 /// Trace the seeds of `run` (see [`trace`]) and return them without writing anything.
 pub fn trace_seeds(
     run: &RunDir,
@@ -394,7 +433,8 @@ pub fn trace_seeds(
         progress.warn(problem);
     }
     let boundary_name = boundary.name();
-    let tracer = Tracer::with_boundary(run, opts, seed_pts.len() as u64, boundary)?;
+    let held = held_bytes(seed_pts.len() as u64, surface.as_ref());
+    let tracer = Tracer::holding(run, opts, seed_pts.len() as u64, held, boundary)?;
     let tiling = tracer.tiling;
     progress.info(&format!(
         "trace: {} seeds, tiles of {} (+{} halo), cache {} tiles and {} chunks",
@@ -523,18 +563,27 @@ pub fn trace(
     let _lock = run.lock()?;
     let _staged = run.staged_images(&["seeds"]);
     let spec: GridSpec = run.grid()?;
-    let tr = trace_seeds(run, opts, false, progress)?;
+    let mut tr = trace_seeds(run, opts, false, progress)?;
     let n = tr.seeds.len();
     let c = tr.ball.center;
+    // The end phase holds the seed table, the sphere points and one metric's scratch at
+    // a time, within what the lines in flight held while tracing (see
+    // [`END_SEED_BYTES`]): the outcomes are consumed into the table, and nothing is
+    // copied that can be moved.
     let mut table = SeedTable {
         position: tr.seeds.iter().map(|&p| to_world(&spec, p)).collect(),
-        phi: tr.phi.clone(),
-        vertex: tr.vertex.clone(),
-        ..SeedTable::default()
+        phi: std::mem::take(&mut tr.phi),
+        vertex: std::mem::take(&mut tr.vertex),
+        theta: Vec::with_capacity(n),
+        psi: Vec::with_capacity(n),
+        stop: Vec::with_capacity(n),
+        steps: Vec::with_capacity(n),
+        length: Vec::with_capacity(n),
+        end: Vec::with_capacity(n),
     };
     let mut stops: BTreeMap<&'static str, u64> = Stop::ALL.iter().map(|s| (s.name(), 0)).collect();
     let (mut steps, mut length) = (0u64, 0.0);
-    for o in &tr.outcomes {
+    for o in std::mem::take(&mut tr.outcomes) {
         *stops.get_mut(o.stop.name()).expect("every reason") += 1;
         let (theta, psi) = if o.stop == Stop::Reached {
             super::angles(o.end - c)
@@ -557,10 +606,8 @@ pub fn trace(
         .surface
         .as_ref()
         .filter(|_| opts.sample.is_none())
-        .map(|m| {
-            let pos: Vec<DVec3> = m.vertices.clone();
-            metrics::surface(&pos, &m.triangles, &sphere)
-        });
+        .map(|m| metrics::surface(&m.vertices, &m.triangles, &sphere));
+    drop(sphere);
     let reached = stops["reached"];
     let report = TraceReport {
         seeds: n as u64,
