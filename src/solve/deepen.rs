@@ -112,7 +112,8 @@ fn hold_above(h: &Hierarchy<'_>, t: f64) -> Result<u64, GridError> {
         Ok(left as f64)
     })?;
     let left = h.blocks.gather(spec, counts)?.iter().sum::<f64>() as u64;
-    h.blocks.exchange(&fine.field("mask"), &*fine.mask, fine.halo)?;
+    h.blocks
+        .exchange(&fine.field("mask"), &*fine.mask, fine.halo)?;
     Ok(left)
 }
 
@@ -144,7 +145,8 @@ fn release(h: &Hierarchy<'_>) -> Result<(), GridError> {
         }
         Ok(())
     })?;
-    h.blocks.exchange(&fine.field("mask"), &*fine.mask, fine.halo)
+    h.blocks
+        .exchange(&fine.field("mask"), &*fine.mask, fine.halo)
 }
 
 /// The finest level's mask changed: make the coarse masks again, and let every level

@@ -74,10 +74,13 @@ impl Level {
             f.correction_energy(&c)
         } else {
             let spec = &self.spec;
-            let occupied = self.occupied(blocks)?;
+            // The record of occupied blocks is per level: only in one process (see
+            // `smooth_pass`).
+            let one = blocks.decomp.parts() == 1;
+            let occupied = if one { self.occupied(blocks)? } else { &[] };
             blocks.sum(spec, |b| {
                 // No unknowns, no energy.
-                if !occupied[spec.block_linear(b) as usize] {
+                if one && !occupied[spec.block_linear(b) as usize] {
                     return Ok(0.0);
                 }
                 let (origin, shape, _) = box_of(spec, b, 1);

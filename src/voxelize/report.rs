@@ -27,7 +27,8 @@ pub struct TopologyRepair {
     pub specks_dropped: u64,
     /// Their voxels.
     pub speck_voxels: u64,
-    /// Voxels the other method would have changed.
+    /// Voxels the other method would have changed; `u64::MAX` when it was not tried
+    /// (the compact cut of large grids).
     pub alternative_voxels: u64,
     /// Changed voxels over the solid's voxels before the repair.
     pub fraction: f64,

@@ -53,7 +53,12 @@ pub(super) fn repair_part(p: &mut String, a: &Value) {
         ("speck voxels", r.speck_voxels.to_string()),
         (
             "voxels the other method would change",
-            r.alternative_voxels.to_string(),
+            // u64::MAX: the other method was not tried (the compact cut of large grids).
+            if r.alternative_voxels == u64::MAX {
+                "not tried".to_string()
+            } else {
+                r.alternative_voxels.to_string()
+            },
         ),
         ("seconds", format!("{:.2}", r.seconds)),
     ];
