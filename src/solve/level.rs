@@ -194,25 +194,33 @@ impl Boxed {
 }
 
 impl Level {
-    /// Per block, whether it holds an unknown (this process's blocks; built on first
-    /// use, again after [`super::flat::Cache::mask_replaced`]).
+    /// Per block, whether it holds an unknown (built on first use, again after
+    /// [`super::flat::Cache::mask_replaced`]); `None` over several processes, where
+    /// passes visit every block: the record is per level, and a level visited in parts
+    /// (ranks, or the tests' slabs one after another) would have it, and the `synced`
+    /// state that goes with it, only for the first part's blocks.
     pub(super) fn occupied(
         &self,
         blocks: &super::blocks::BlockLoop<'_>,
-    ) -> Result<&[bool], GridError> {
-        self.flat.occupied(|| {
-            let mut out = vec![false; self.spec.num_blocks() as usize];
-            for (b, any) in blocks.map(&self.spec, |b| {
-                Ok(self
-                    .mask
-                    .read_block(b)?
-                    .iter()
-                    .any(|&m| super::cuts::is_unknown(m)))
-            })? {
-                out[self.spec.block_linear(b) as usize] = any;
-            }
-            Ok(out)
-        })
+    ) -> Result<Option<&[bool]>, GridError> {
+        if blocks.decomp.parts() != 1 {
+            return Ok(None);
+        }
+        self.flat
+            .occupied(|| {
+                let mut out = vec![false; self.spec.num_blocks() as usize];
+                for (b, any) in blocks.map(&self.spec, |b| {
+                    Ok(self
+                        .mask
+                        .read_block(b)?
+                        .iter()
+                        .any(|&m| super::cuts::is_unknown(m)))
+                })? {
+                    out[self.spec.block_linear(b) as usize] = any;
+                }
+                Ok(out)
+            })
+            .map(Some)
     }
 
     /// Zero the right-hand side and the correction of this (coarse) level's block `b`.

@@ -154,14 +154,10 @@ impl Level {
         // on such blocks the pass need not visit them (the fused restriction's coarse
         // block under it has no unknowns either: its right-hand side and correction
         // are zero).
-        // Only in one process: the record of which blocks are occupied and synced is
-        // per level, and a level visited in parts (ranks, or the tests' slabs one after
-        // another) would skip blocks that no pass of its own has copied yet.
-        let one = blocks.decomp.parts() == 1;
-        let occupied = if one { self.occupied(blocks)? } else { &[] };
-        let skip = one && self.flat.synced() && pass.src != pass.dst;
+        let occupied = self.occupied(blocks)?;
+        let skip = occupied.filter(|_| self.flat.synced() && pass.src != pass.dst);
         let st = blocks.stats(&self.spec, |b| {
-            if skip && !occupied[self.spec.block_linear(b) as usize] {
+            if skip.is_some_and(|o| !o[self.spec.block_linear(b) as usize]) {
                 if let Some(c) = pass.restrict_into {
                     c.zero_block(b)?;
                 }
@@ -169,7 +165,7 @@ impl Level {
             }
             self.smooth_block(b, pass)
         })?;
-        if one && pass.src != pass.dst {
+        if occupied.is_some() && pass.src != pass.dst {
             self.flat.set_synced();
         }
         blocks.exchange(

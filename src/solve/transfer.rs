@@ -74,13 +74,10 @@ impl Level {
             f.correction_energy(&c)
         } else {
             let spec = &self.spec;
-            // The record of occupied blocks is per level: only in one process (see
-            // `smooth_pass`).
-            let one = blocks.decomp.parts() == 1;
-            let occupied = if one { self.occupied(blocks)? } else { &[] };
+            let occupied = self.occupied(blocks)?;
             blocks.sum(spec, |b| {
                 // No unknowns, no energy.
-                if one && !occupied[spec.block_linear(b) as usize] {
+                if occupied.is_some_and(|o| !o[spec.block_linear(b) as usize]) {
                     return Ok(0.0);
                 }
                 let (origin, shape, _) = box_of(spec, b, 1);

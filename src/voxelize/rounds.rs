@@ -14,8 +14,8 @@ use super::{
     closing, compact, components, euler, repair, windows, RepairRegion, TopologyRepair,
     VoxelizeError, HANDLE_PROBE, HANDLE_PROBE_ANGSTROM,
 };
-use crate::grid::human;
-use crate::input::Shape;
+use crate::grid::{human, GridSpec};
+use crate::input::{Shape, TriMesh};
 use crate::math::Idx3;
 
 /// Rounds of windowed repair before the whole-grid fallback.
@@ -204,11 +204,7 @@ fn round(
         .filter(|(_, s)| s.iter().map(|&c| c as u64).product::<u64>() <= windows::MAX_WINDOW_VOXELS)
         .collect();
     let mut applied: Vec<(Idx3, [usize; 3], windows::WindowOutcome)> = Vec::new();
-    // The mesh, when the input is one: the depths the growths follow.
-    let surface = match env.shape {
-        Shape::Mesh(m) => Some((m, env.spec)),
-        _ => None,
-    };
+    let surface = mesh(env);
     for &(origin, wshape) in &boxes {
         check_room(env, wshape.iter().map(|&c| c as u64).product())?;
         if let Some(o) = windows::repair_window(env.solid, origin, wshape, surface)? {
@@ -260,11 +256,7 @@ fn compact_cut(env: &Env, tally: &mut Tally, solid: u64, chi: i64) -> Result<(),
         ))
         .into());
     }
-    let surface = match env.shape {
-        Shape::Mesh(m) => Some((m, env.spec)),
-        _ => None,
-    };
-    let o = compact::cut(env.solid, surface, env.progress)?;
+    let o = compact::cut(env.solid, mesh(env), env.progress)?;
     tally.removed += o.removed;
     tally.cut += 1 - chi;
     // The fill is not tried on this path.
@@ -274,6 +266,14 @@ fn compact_cut(env: &Env, tally: &mut Tally, solid: u64, chi: i64) -> Result<(),
 }
 
 /// Refuse a window that does not fit in what `--mem` leaves.
+/// The mesh and its grid when the input is a mesh: the depths the growths follow.
+fn mesh<'a>(env: &Env<'a>) -> Option<(&'a TriMesh, &'a GridSpec)> {
+    match env.shape {
+        Shape::Mesh(m) => Some((m, env.spec)),
+        _ => None,
+    }
+}
+
 fn check_room(env: &Env, voxels: u64) -> Result<(), crate::Error> {
     let need = voxels * windows::BYTES_PER_WINDOW_VOXEL;
     if need > env.room {
@@ -378,11 +378,7 @@ pub(super) fn run_repair(
             ))
             .into());
         }
-        let surface = match env.shape {
-            Shape::Mesh(m) => Some((m, env.spec)),
-            _ => None,
-        };
-        let o = repair::repair(env.solid, surface)?;
+        let o = repair::repair(env.solid, mesh(env))?;
         tally.removed += o.removed;
         tally.added += o.added;
         tally.specks += o.specks;
