@@ -263,6 +263,78 @@ fn streamlines_get_out_of_thin_parts() {
     }
 }
 
+/// The flipped triangles of a stored table's sphere map, counted from its theta and psi
+/// alone (as a user reading the table would).
+fn flips_in_table(t: &SeedTable, triangles: &[[u32; 3]]) -> u64 {
+    let p = |i: u32| t.sphere(i as usize);
+    triangles
+        .iter()
+        .filter(|&&[a, b, c]| match (p(a), p(b), p(c)) {
+            (Some(a), Some(b), Some(c)) => harmap::trace::metrics::orientation(a, b, c) <= 0.0,
+            _ => false,
+        })
+        .count() as u64
+}
+
+#[test]
+fn untangling_the_starfish_keeps_its_arrivals_and_moves_only_the_seeds_it_counts() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = solved_starfish(dir.path());
+    let mesh = harmap::input::starfish::starfish(64, 240);
+    let plain = TraceOptions::for_seeds(SeedKind::Surface);
+    let (rep_a, a) = run_trace(&run, &plain);
+    assert!(rep_a.untangle.is_none());
+    assert!(
+        a.arrival_theta.is_empty(),
+        "arrival columns only with --untangle"
+    );
+    let flips_a = rep_a.surface.as_ref().unwrap().flipped;
+    assert!(
+        flips_a > 50,
+        "{flips_a}: the case no longer shows the problem"
+    );
+    let on = TraceOptions {
+        untangle: true,
+        ..plain.clone()
+    };
+    let (rep_b, b) = run_trace(&run, &on);
+    let u = rep_b.untangle.as_ref().expect("the untangling's report");
+    let m = rep_b.surface.as_ref().unwrap();
+    eprintln!(
+        "starfish at 80: {flips_a} flipped as arrived, {} after; {u:?}",
+        m.flipped
+    );
+    // The arrivals are the plain trace's, bit for bit.
+    assert_eq!(u.flipped_arrivals, flips_a);
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&b.arrival_theta), bits(&a.theta));
+    assert_eq!(bits(&b.arrival_psi), bits(&a.psi));
+    // Only the seeds it counts moved, and the flips it reports are the table's.
+    let moved = (0..a.theta.len())
+        .filter(|&i| {
+            a.theta[i].to_bits() != b.theta[i].to_bits() || a.psi[i].to_bits() != b.psi[i].to_bits()
+        })
+        .count() as u64;
+    assert_eq!(moved, u.seeds_moved);
+    assert_eq!(flips_in_table(&b, &mesh.triangles), m.flipped);
+    assert_eq!(flips_in_table(&a, &mesh.triangles), flips_a);
+    assert_eq!(m.flipped, u.unresolved);
+    // A third of the flips go at least, by moves of a fraction of a degree in the
+    // median.
+    assert!(
+        m.flipped * 3 < flips_a * 2,
+        "{} of {flips_a} left",
+        m.flipped
+    );
+    assert!(u.median_move_deg < 1.0, "{u:?}");
+    // Collisions measure the arrivals' squeeze, with or without untangling.
+    assert_eq!(rep_b.collisions, rep_a.collisions);
+    // Recorded: a run traced again without the flag is traced plainly again.
+    let (rep_c, c) = run_trace(&run, &plain);
+    assert!(rep_c.untangle.is_none() && c.arrival_theta.is_empty());
+    assert_eq!(bits(&c.theta), bits(&a.theta));
+}
+
 fn harmap(args: &[&str]) -> std::process::Output {
     std::process::Command::new(env!("CARGO_BIN_EXE_harmap"))
         .args(args)

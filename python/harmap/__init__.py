@@ -554,13 +554,16 @@ def trace(
     h_max=2.0,
     max_steps=20000,
     level_step=None,
+    untangle=False,
     progress=True,
 ):
     """Trace streamlines from the seeds to the center (``harmap trace``); returns the
     trace's report. ``seeds``: "surface" (the input mesh's vertices, or the labels'
     surface nets; the command's default, whose triangles give the flip counts) or
     "boundary" (every boundary voxel). ``atol`` and ``level_step`` default by the
-    seeds, as the command's. Ctrl-C stops it within about a second
+    seeds, as the command's. ``untangle=True`` untangles a whole surface's sphere map
+    (``--untangle``: theta and psi become the untangled map, arrival_theta and
+    arrival_psi keep the arrivals). Ctrl-C stops it within about a second
     (KeyboardInterrupt)."""
     with _Bars(progress) as bars:
         r = _harmap.trace(
@@ -576,6 +579,7 @@ def trace(
             h_max=h_max,
             max_steps=max_steps,
             level_step=level_step,
+            untangle=untangle,
             progress=bars,
         )
     return json.loads(r)
@@ -687,6 +691,7 @@ def run(
     h_max=2.0,
     max_steps=20000,
     level_step=None,
+    untangle=False,
     trace_rtol=0.0,
     exact=False,
     progress=True,
@@ -752,6 +757,7 @@ def run(
                 h_max=h_max,
                 max_steps=max_steps,
                 level_step=level_step,
+                untangle=untangle,
                 trace_rtol=trace_rtol,
                 exact=exact,
                 atlas=str(out.with_suffix(".atlas.png")),

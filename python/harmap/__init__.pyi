@@ -110,6 +110,7 @@ def trace(
     h_max: float = 2.0,
     max_steps: int = 20000,
     level_step: Optional[float] = None,
+    untangle: bool = False,
     progress: bool = True,
 ) -> Dict[str, Any]: ...
 def map(run: PathLike, *, exact: bool = False, mem: Mem = "1GiB", progress: bool = True) -> Dict[str, Any]: ...
@@ -183,6 +184,7 @@ def run(
     h_max: float = 2.0,
     max_steps: int = 20000,
     level_step: Optional[float] = None,
+    untangle: bool = False,
     trace_rtol: float = 0.0,
     exact: bool = False,
     progress: bool = True,

@@ -514,6 +514,7 @@ fn trace_options(
     h_max: f64,
     max_steps: u32,
     level_step: Option<f64>,
+    untangle: bool,
 ) -> PyResult<harmap::trace::TraceOptions> {
     use harmap::trace::{Rk45, SeedKind, TraceOptions};
     let seeds = match seeds {
@@ -527,6 +528,7 @@ fn trace_options(
         sample,
         stop_radius,
         tile,
+        untangle,
         mem,
         rk: Rk45 {
             atol: atol.unwrap_or(default.atol),
@@ -545,7 +547,7 @@ fn trace_options(
 #[pyfunction]
 #[pyo3(signature = (run, *, seeds="surface", sample=None, stop_radius=None, tile=None,
     mem="1GiB", atol=None, rtol=0.0, h_min=1e-6, h_max=2.0, max_steps=20_000,
-    level_step=None, progress=None))]
+    level_step=None, untangle=false, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn trace(
     py: Python<'_>,
@@ -561,6 +563,7 @@ fn trace(
     h_max: f64,
     max_steps: u32,
     level_step: Option<f64>,
+    untangle: bool,
     progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<String> {
     let opts = trace_options(
@@ -575,6 +578,7 @@ fn trace(
         h_max,
         max_steps,
         level_step,
+        untangle,
     )?;
     let r = open(py, &run)?;
     // Stop radii that cannot work are refused before anything is traced, as the
@@ -634,7 +638,7 @@ fn map(
     radius=None, method="multigrid", cycle="fmg", rtol=1e-6, tol=0.0, eps=1e-4, max_iter=1000,
     omega=None, checkpoint_every=300.0, seeds="surface", sample=None, stop_radius=None,
     tile=None, atol=None, h_min=1e-6, h_max=2.0, max_steps=20_000, level_step=None,
-    trace_rtol=0.0, exact=false, atlas=None, report=None, progress=None))]
+    untangle=false, trace_rtol=0.0, exact=false, atlas=None, report=None, progress=None))]
 #[allow(clippy::too_many_arguments, clippy::fn_params_excessive_bools)]
 fn run(
     py: Python<'_>,
@@ -678,6 +682,7 @@ fn run(
     h_max: f64,
     max_steps: u32,
     level_step: Option<f64>,
+    untangle: bool,
     trace_rtol: f64,
     exact: bool,
     atlas: Option<PathBuf>,
@@ -737,6 +742,7 @@ fn run(
             h_max,
             max_steps,
             level_step,
+            untangle,
         )?,
         map: map_options(exact, None, mem),
         atlas,

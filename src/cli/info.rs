@@ -302,6 +302,18 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
                 q("conformal", "p95"),
             )?;
         }
+        if let Some(u) = v.get("untangle").filter(|u| !u.is_null()) {
+            writeln!(
+                out,
+                "          untangled (--untangle) from {} flipped and {} degenerate as the streamlines arrived: {} seeds moved, median {:.3} and at most {:.2} degrees; {} left",
+                u["flipped_arrivals"],
+                u["degenerate_arrivals"],
+                u["seeds_moved"],
+                u["median_move_deg"].as_f64().unwrap_or(f64::NAN),
+                u["max_move_deg"].as_f64().unwrap_or(f64::NAN),
+                u["unresolved"],
+            )?;
+        }
     }
     if let Some(v) = report_in::<Value>(&attrs, "map") {
         write!(

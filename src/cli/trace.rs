@@ -104,6 +104,15 @@ pub struct TraceArgs {
     /// the steps.
     #[arg(long, value_name = "LN_U", help_heading = "Integrator")]
     pub level_step: Option<f64>,
+    /// Surface seeds: untangle the sphere map where its flat triangles turn over, by
+    /// moving each vertex of a flipped triangle toward the point that maximizes the
+    /// smallest area of its triangles (part of the way). theta and psi are then the
+    /// untangled map, the streamlines' arrivals are kept as arrival_theta and
+    /// arrival_psi, and the report says how many seeds moved and how far (blub at
+    /// 128: 445 flips to 55, median move 0.02 degrees). Flips that need whole regions
+    /// moved stay, counted (docs/trace.md, Untangling).
+    #[arg(long)]
+    pub untangle: bool,
 }
 
 impl From<SeedKind> for SeedArg {
@@ -148,6 +157,7 @@ impl TraceArgs {
             sample: self.sample,
             stop_radius: self.stop_radius,
             tile: self.tile,
+            untangle: self.untangle,
             mem,
             rk: Rk45 {
                 atol: self.atol.unwrap_or(default.atol),
@@ -188,8 +198,20 @@ pub fn summary(r: &TraceReport, seconds: f64) -> String {
             m.flipped, m.measured, m.conformal.p50
         );
     }
+    if let Some(u) = &r.untangle {
+        let _ = write!(s, " ({})", untangled(u));
+    }
     let _ = write!(s, "; {} colliding seeds", r.collisions.seeds);
     s
+}
+
+/// What untangling changed, in words.
+#[must_use]
+pub fn untangled(u: &harmap::trace::untangle::UntangleReport) -> String {
+    format!(
+        "untangled from {} flipped and {} degenerate as the streamlines arrived: {} seeds moved, median {:.3} and at most {:.2} degrees",
+        u.flipped_arrivals, u.degenerate_arrivals, u.seeds_moved, u.median_move_deg, u.max_move_deg
+    )
 }
 
 /// Run `harmap trace`.

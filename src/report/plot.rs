@@ -30,6 +30,9 @@ pub(super) fn title(run: &RunDir, t: &SeedTable) -> String {
     if let Some(r) = crate::run::report_in::<Bijectivity>(&a, "trace") {
         if let Some(m) = r.surface {
             let _ = write!(s, "; {} of {} triangles flipped", m.flipped, m.measured);
+            if let Some(u) = r.untangle {
+                let _ = write!(s, " (untangled from {})", u.flipped_arrivals);
+            }
         }
         if let Some(c) = r.collisions {
             let _ = write!(s, "; {} collisions", c.seeds);
@@ -48,6 +51,7 @@ pub(super) fn title(run: &RunDir, t: &SeedTable) -> String {
 #[derive(serde::Deserialize)]
 struct Bijectivity {
     surface: Option<Flips>,
+    untangle: Option<Untangled>,
     collisions: Option<CollidingSeeds>,
     indistinguishable: Option<CollidingSeeds>,
 }
@@ -69,6 +73,12 @@ struct FoldCount {
 struct Flips {
     measured: u64,
     flipped: u64,
+}
+
+/// Of [`crate::trace::untangle::UntangleReport`].
+#[derive(serde::Deserialize)]
+struct Untangled {
+    flipped_arrivals: u64,
 }
 
 /// Of [`crate::trace::metrics::Collisions`].

@@ -13,7 +13,9 @@
 //! - `table`: the seed table `RUN/seeds/`, written and read;
 //! - [`stage`]: the stage (options, budget, the tracer, the report);
 //! - [`extract`]: surface nets of the labels, for seeds without an input mesh;
-//! - [`metrics`]: flipped triangles, collisions and distortion of the sphere map.
+//! - [`metrics`]: flipped triangles, collisions and distortion of the sphere map;
+//! - [`untangle`]: the surface's sphere map made one-to-one where its flat triangles
+//!   turn over (Tutte's embedding of each tangled patch).
 //!
 //! `trace` writes the seed table `RUN/seeds/` and records `harmap.stages.trace`.
 
@@ -29,6 +31,7 @@ pub mod stage;
 pub mod surface;
 mod table;
 pub mod tiles;
+pub mod untangle;
 
 pub use integrate::{Rk45, Stop};
 pub use seeds::SeedKind;

@@ -15,6 +15,7 @@ use super::surface::Boundary;
 use super::table::write_seeds;
 pub use super::table::{read_seeds, SeedTable};
 use super::tiles::{footprint, trace_tiled, TileStats, Tiling};
+use super::untangle;
 use crate::grid::{BlockStore, GridError, GridSpec, MemBudget};
 use crate::progress::Progress;
 use crate::run::RunDir;
@@ -33,6 +34,11 @@ pub struct TraceOptions {
     pub rk: Rk45,
     /// Tile edge in voxels (default: the chunk edge of phi). Results do not depend on it.
     pub tile: Option<u64>,
+    /// For a whole surface's seeds: untangle the sphere map ([`untangle`]), keeping the
+    /// arrivals beside it. Recorded only when on, so runs traced before it keep their
+    /// options.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub untangle: bool,
     /// Memory budget.
     #[serde(skip)]
     pub mem: MemBudget,
@@ -55,6 +61,7 @@ impl Default for TraceOptions {
             stop_radius: None,
             rk: Rk45::default(),
             tile: None,
+            untangle: false,
             mem: MemBudget::default(),
         }
     }
@@ -107,8 +114,12 @@ pub struct TraceReport {
     pub collisions: Collisions,
     /// Seeds whose stored arrival directions equal those of a seed from elsewhere.
     pub indistinguishable: metrics::Indistinguishable,
-    /// Flips and distortion, for surface seeds.
+    /// Flips and distortion of the stored sphere map, for surface seeds (after
+    /// [`untangle`] when it ran).
     pub surface: Option<SurfaceMetrics>,
+    /// With `untangle`: what untangling the surface's sphere map changed (the flips of
+    /// the streamlines' arrivals, the seeds moved).
+    pub untangle: Option<untangle::UntangleReport>,
     /// Streamlines per second (tracing only).
     pub lines_per_second: f64,
     /// The direction field the streamlines followed ([`crate::trace::field::FIELD`]).
@@ -353,22 +364,32 @@ pub const LINE_BYTES: u64 = 176;
 pub const SEED_BYTES: u64 = 36;
 
 /// Bytes a seed holds at most after tracing, while [`trace`] measures and writes: its
-/// point (24), its row of the seed table (89), its sphere point (32) and the scratch of
-/// one measure at a time (the collision search's 16 or the indistinguishable search's
-/// 24). The tiles are gone by then, so this is within what the seed and its line held
-/// while tracing (checked at compile time).
-pub const END_SEED_BYTES: u64 = 24 + 89 + 32 + 24;
+/// point (24), its row of the seed table (89, and 16 for the arrival angles of surface
+/// seeds), its sphere point (32) and the scratch of one measure at a time (the
+/// collision search's 16 or the indistinguishable search's 24). The tiles are gone by
+/// then, so this is within what the seed and its line held while tracing (checked at
+/// compile time).
+pub const END_SEED_BYTES: u64 = 24 + 89 + 16 + 32 + 24;
 const _: () = assert!(END_SEED_BYTES <= LINE_BYTES + SEED_BYTES);
 
 /// Bytes of the seeds and their surface that [`trace_seeds`] and [`trace`] hold for the
 /// whole trace, counted against `--mem` beside the lines: [`SEED_BYTES`] a seed, and for
-/// surface seeds the surface (a vertex 24, a triangle 12, and the surface measures'
-/// [`metrics::SURFACE_TRIANGLE_BYTES`]).
+/// surface seeds the surface (a vertex 24, a triangle 12) and the most the end phase
+/// holds beside it: the surface measures' [`metrics::SURFACE_TRIANGLE_BYTES`], or with
+/// `untangle` the untangling's index if larger ([`untangle::UNTANGLE_TRIANGLE_BYTES`]
+/// and [`untangle::UNTANGLE_VERTEX_BYTES`]).
 #[must_use]
-pub fn held_bytes(seeds: u64, surface: Option<&crate::input::TriMesh>) -> u64 {
+pub fn held_bytes(seeds: u64, surface: Option<&crate::input::TriMesh>, untangle: bool) -> u64 {
     let mesh = surface.map_or(0, |m| {
-        m.vertices.len() as u64 * 24
-            + m.triangles.len() as u64 * (12 + metrics::SURFACE_TRIANGLE_BYTES)
+        let (t, v) = (m.triangles.len() as u64, m.vertices.len() as u64);
+        let measures = t * metrics::SURFACE_TRIANGLE_BYTES;
+        let end = if untangle {
+            measures
+                .max(t * untangle::UNTANGLE_TRIANGLE_BYTES + v * untangle::UNTANGLE_VERTEX_BYTES)
+        } else {
+            measures
+        };
+        v * 24 + t * 12 + end
     });
     seeds * SEED_BYTES + mesh
 }
@@ -433,7 +454,7 @@ pub fn trace_seeds(
         progress.warn(problem);
     }
     let boundary_name = boundary.name();
-    let held = held_bytes(seed_pts.len() as u64, surface.as_ref());
+    let held = held_bytes(seed_pts.len() as u64, surface.as_ref(), opts.untangle);
     let tracer = Tracer::holding(run, opts, seed_pts.len() as u64, held, boundary)?;
     let tiling = tracer.tiling;
     progress.info(&format!(
@@ -576,6 +597,8 @@ pub fn trace(
         vertex: std::mem::take(&mut tr.vertex),
         theta: Vec::with_capacity(n),
         psi: Vec::with_capacity(n),
+        arrival_theta: Vec::new(),
+        arrival_psi: Vec::new(),
         stop: Vec::with_capacity(n),
         steps: Vec::with_capacity(n),
         length: Vec::with_capacity(n),
@@ -599,14 +622,27 @@ pub fn trace(
         steps += u64::from(o.steps);
         length += o.length;
     }
-    let sphere: Vec<Option<DVec3>> = (0..n).map(|i| table.sphere(i)).collect();
+    let mut sphere: Vec<Option<DVec3>> = (0..n).map(|i| table.sphere(i)).collect();
+    // The collisions measure the squeeze of the streamlines' own arrivals.
     let collisions = metrics::collisions(&tr.seeds, &sphere, 0.05, 5.0);
+    // With --untangle, a whole surface's sphere map is untangled where its flat
+    // triangles turn over; the arrivals are kept beside it.
+    let whole_surface = tr.surface.as_ref().filter(|_| opts.sample.is_none());
+    let untangled = whole_surface.filter(|_| opts.untangle).map(|m| {
+        let r = untangle::untangle(&m.triangles, &mut sphere);
+        table.arrival_theta.clone_from(&table.theta);
+        table.arrival_psi.clone_from(&table.psi);
+        for (i, p) in sphere.iter().enumerate() {
+            if let Some(p) = p {
+                if *p != super::unit(table.theta[i], table.psi[i]) {
+                    (table.theta[i], table.psi[i]) = super::angles(*p);
+                }
+            }
+        }
+        r
+    });
     let indistinguishable = metrics::indistinguishable(&tr.seeds, &table.theta, &table.psi);
-    let surface = tr
-        .surface
-        .as_ref()
-        .filter(|_| opts.sample.is_none())
-        .map(|m| metrics::surface(&m.vertices, &m.triangles, &sphere));
+    let surface = whole_surface.map(|m| metrics::surface(&m.vertices, &m.triangles, &sphere));
     drop(sphere);
     let reached = stops["reached"];
     let report = TraceReport {
@@ -623,6 +659,7 @@ pub fn trace(
         collisions,
         indistinguishable,
         surface,
+        untangle: untangled,
         lines_per_second: n as f64 / tr.seconds.max(1e-9),
         field: super::field::FIELD,
         boundary: tr.boundary,

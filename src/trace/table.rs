@@ -22,6 +22,12 @@ pub struct SeedTable {
     pub theta: Vec<f64>,
     /// Azimuth of arrival (radians; NaN where it did not reach).
     pub psi: Vec<f64>,
+    /// For a whole surface's seeds: the polar angle at which the streamline arrived,
+    /// before untangling ([`super::untangle`]; else empty). `theta` differs from it only
+    /// at the seeds the untangling moved.
+    pub arrival_theta: Vec<f64>,
+    /// Likewise the azimuth.
+    pub arrival_psi: Vec<f64>,
     /// phi at the seed.
     pub phi: Vec<f64>,
     /// Stop reason codes ([`Stop`]).
@@ -91,8 +97,10 @@ pub(super) fn write_seeds(
             "rows": t.position.len(),
             "columns": {
                 "position": "world x, y, z of the seed",
-                "theta": "polar angle of arrival, radians (NaN: did not reach)",
-                "psi": "azimuth of arrival, radians (NaN: did not reach)",
+                "theta": "polar angle on the sphere, radians (NaN: did not reach); for a whole surface, untangled",
+                "psi": "azimuth on the sphere, radians (NaN: did not reach); for a whole surface, untangled",
+                "arrival_theta": "whole surfaces: polar angle at which the streamline arrived, before untangling",
+                "arrival_psi": "whole surfaces: azimuth at which the streamline arrived, before untangling",
                 "phi": "phi at the seed",
                 "stop": "stop reason code",
                 "steps": "accepted RK45 steps",
@@ -124,6 +132,14 @@ pub(super) fn write_seeds(
             write_table(root, &p("vertex"), 0, &t.vertex, u32::MAX)
         }));
     }
+    if !t.arrival_theta.is_empty() {
+        columns.push(Box::new(|| {
+            write_table(root, &p("arrival_theta"), 0, &t.arrival_theta, f64::NAN)
+        }));
+        columns.push(Box::new(|| {
+            write_table(root, &p("arrival_psi"), 0, &t.arrival_psi, f64::NAN)
+        }));
+    }
     columns
         .par_iter()
         .with_max_len(1)
@@ -151,10 +167,17 @@ pub fn read_seeds(run: &RunDir) -> Result<SeedTable, crate::Error> {
     } else {
         Vec::new()
     };
+    let (arrival_theta, arrival_psi) = if root.join("seeds/arrival_theta").exists() {
+        (f64s("arrival_theta")?, f64s("arrival_psi")?)
+    } else {
+        (Vec::new(), Vec::new())
+    };
     Ok(SeedTable {
         position: unflat(&f64s("position")?),
         theta: f64s("theta")?,
         psi: f64s("psi")?,
+        arrival_theta,
+        arrival_psi,
         phi: f64s("phi")?,
         stop: read_table::<u8>(root, "/seeds/stop")?.1,
         steps: read_table::<u32>(root, "/seeds/steps")?.1,

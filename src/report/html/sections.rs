@@ -399,6 +399,21 @@ pub(super) fn trace_section(p: &mut String, a: &Value) {
                 ("degenerate", text(at(s, "/degenerate"))),
             ],
         );
+        let u = at(r, "/untangle");
+        if !u.is_null() {
+            kv(
+                p,
+                &[
+                    (
+                        "flipped as the streamlines arrived (before --untangle)",
+                        text(at(u, "/flipped_arrivals")),
+                    ),
+                    ("seeds moved by untangling", text(at(u, "/seeds_moved"))),
+                    ("median move, degrees", text(at(u, "/median_move_deg"))),
+                    ("largest move, degrees", text(at(u, "/max_move_deg"))),
+                ],
+            );
+        }
         p.push_str(
             "<table><tr><th>distortion</th><th>p05</th><th>p50</th><th>p95</th><th>max</th></tr>",
         );
