@@ -27,41 +27,114 @@ pub const ADDED: u8 = 2;
 /// nearest voxel where `feature` holds; `u32::MAX` when there is none.
 #[must_use]
 pub fn edt_sq(feature: &[bool], shape: [usize; 3]) -> Vec<u32> {
-    const INF: f64 = f64::INFINITY;
-    let [nz, ny, nx] = shape;
-    let mut g: Vec<f64> = feature.iter().map(|&f| if f { 0.0 } else { INF }).collect();
-    let n = nx.max(ny).max(nz);
-    let (mut f, mut d) = (vec![0.0; n], vec![0.0; n]);
-    let (mut v, mut z) = (vec![0usize; n], vec![0.0; n + 1]);
-    // One line of `len` values from `start`, `stride` apart: gathered, transformed,
-    // scattered back.
-    let mut line = |g: &mut [f64], start: usize, stride: usize, len: usize| {
-        for (q, fq) in f[..len].iter_mut().enumerate() {
-            *fq = g[start + q * stride];
-        }
-        dt1d(&f[..len], &mut d[..len], &mut v, &mut z);
-        for (q, dq) in d[..len].iter().enumerate() {
-            g[start + q * stride] = *dq;
-        }
-    };
-    for zz in 0..nz {
-        for y in 0..ny {
-            line(&mut g, (zz * ny + y) * nx, 1, nx);
-        }
-    }
-    for zz in 0..nz {
-        for x in 0..nx {
-            line(&mut g, zz * ny * nx + x, nx, ny);
-        }
-    }
-    for y in 0..ny {
-        for x in 0..nx {
-            line(&mut g, y * nx + x, nx * ny, nz);
-        }
-    }
+    let mut g: Vec<f64> = feature
+        .iter()
+        .map(|&f| if f { 0.0 } else { f64::INFINITY })
+        .collect();
+    edt_sq_in_place(&mut g, shape, false);
     g.iter()
         .map(|&x| if x.is_finite() { x as u32 } else { u32::MAX })
         .collect()
+}
+
+/// The transform of [`edt_sq`] in place: `g` is 0 at the features and infinite
+/// elsewhere on entry, the squared distance (exact integers in f64; infinite where there
+/// is no feature) on return. With `parallel`, the lines of each pass are transformed on
+/// the pool's threads (the result is the same: each line is exact on its own).
+pub(super) fn edt_sq_in_place(g: &mut [f64], shape: [usize; 3], parallel: bool) {
+    use rayon::prelude::*;
+    let [nz, ny, nx] = shape;
+    let n = nx.max(ny).max(nz);
+    // One line of `len` values from `start`, `stride` apart: gathered, transformed,
+    // scattered back, with scratch `w` of four lines.
+    let line = |g: &mut [f64], start: usize, stride: usize, len: usize, w: &mut Scratch| {
+        for (q, fq) in w.f[..len].iter_mut().enumerate() {
+            *fq = g[start + q * stride];
+        }
+        dt1d(&w.f[..len], &mut w.d[..len], &mut w.v, &mut w.z);
+        for (q, dq) in w.d[..len].iter().enumerate() {
+            g[start + q * stride] = *dq;
+        }
+    };
+    let plane = ny * nx;
+    // x then y, within each z plane.
+    let planes = |g: &mut [f64], w: &mut Scratch| {
+        for y in 0..ny {
+            line(g, y * nx, 1, nx, w);
+        }
+        for x in 0..nx {
+            line(g, x, nx, ny, w);
+        }
+    };
+    if parallel {
+        g.par_chunks_mut(plane)
+            .for_each_init(|| Scratch::new(n), |w, p| planes(p, w));
+    } else {
+        let mut w = Scratch::new(n);
+        for p in g.chunks_mut(plane) {
+            planes(p, &mut w);
+        }
+    }
+    // z, for each (y, x). In parallel: the nz x nx values of a few y at a time (two
+    // for each thread, so that the copies stay small), gathered, transformed along z on
+    // the threads and scattered back.
+    if parallel {
+        let batch = 2 * rayon::current_num_threads().max(1);
+        for y0 in (0..ny).step_by(batch) {
+            let ys: Vec<usize> = (y0..(y0 + batch).min(ny)).collect();
+            let g_ref: &[f64] = g;
+            let rows: Vec<Vec<f64>> = ys
+                .par_iter()
+                .map_init(
+                    || Scratch::new(n),
+                    |w, &y| {
+                        let mut row = vec![0.0; nz * nx];
+                        for z in 0..nz {
+                            row[z * nx..(z + 1) * nx].copy_from_slice(
+                                &g_ref[z * plane + y * nx..z * plane + (y + 1) * nx],
+                            );
+                        }
+                        for x in 0..nx {
+                            line(&mut row, x, nx, nz, w);
+                        }
+                        row
+                    },
+                )
+                .collect();
+            for (&y, row) in ys.iter().zip(&rows) {
+                for z in 0..nz {
+                    g[z * plane + y * nx..z * plane + (y + 1) * nx]
+                        .copy_from_slice(&row[z * nx..(z + 1) * nx]);
+                }
+            }
+        }
+    } else {
+        let mut w = Scratch::new(n);
+        for y in 0..ny {
+            for x in 0..nx {
+                line(g, y * nx + x, plane, nz, &mut w);
+            }
+        }
+    }
+}
+
+/// The line buffers of [`dt1d`].
+struct Scratch {
+    f: Vec<f64>,
+    d: Vec<f64>,
+    v: Vec<usize>,
+    z: Vec<f64>,
+}
+
+impl Scratch {
+    fn new(n: usize) -> Self {
+        Self {
+            f: vec![0.0; n],
+            d: vec![0.0; n],
+            v: vec![0; n],
+            z: vec![0.0; n + 1],
+        }
+    }
 }
 
 /// One-dimensional squared distance transform of the sampled function `f` (lower
@@ -112,17 +185,44 @@ pub(super) fn dt1d(f: &[f64], d: &mut [f64], v: &mut [usize], z: &mut [f64]) {
 /// Close the solid (`{v == 1}` of `solid`) by a ball of `radius` voxels into `out`:
 /// 1 where the solid is, [`ADDED`] where closing adds a voxel, 0 elsewhere. Returns the
 /// voxels added.
+///
+/// Block by block on `workers` threads, each block read with a halo of `2 radius`; or,
+/// when the whole grid padded by `radius` fits in `room` bytes ([`whole_bytes`]) and
+/// is smaller than the blocks' boxes together, in one box of the whole grid, with the
+/// transform's lines on the threads. The two give the same bytes: both distances are
+/// exact, and every voxel that decides a voxel's value is in its box (the solid lies in
+/// the grid, and the dilation outside the padded grid is empty within `radius` of it).
+/// The halos make the blocks' boxes 60 times the grid for a closing by 48 in blocks of
+/// 64 (adk_open at 0.25 A: 45 s against under 2 s whole).
 pub fn close(
     solid: &dyn BlockStore<u8>,
     out: &dyn BlockStore<u8>,
     radius: u32,
     workers: usize,
+    room: u64,
     progress: &dyn Progress,
 ) -> Result<u64, crate::Error> {
     let spec = solid.spec();
     let blocks = spec.block_indices();
     let r2 = radius * radius;
     let h = 2 * radius as usize;
+    let boxes: u64 = blocks
+        .iter()
+        .map(|&b| {
+            spec.block_shape(b)
+                .iter()
+                .map(|&c| c + 2 * h as u64)
+                .product::<u64>()
+        })
+        .sum();
+    let padded: u64 = spec
+        .shape
+        .iter()
+        .map(|&c| c + 2 * u64::from(radius))
+        .product();
+    if padded < boxes && whole_bytes(spec, radius) <= room {
+        return close_whole(solid, out, radius, workers, progress);
+    }
     progress.start(
         &format!("voxelize: closing by {radius} voxels"),
         blocks.len() as u64,
@@ -146,6 +246,96 @@ pub fn close(
                     data.push(if solid_box[i] {
                         1
                     } else if ero[i] > r2 {
+                        n += 1;
+                        ADDED
+                    } else {
+                        0
+                    });
+                }
+            }
+        }
+        out.write_block(b, &data)?;
+        progress.advance(1);
+        Ok(n)
+    })?;
+    progress.finish();
+    Ok(added.iter().sum())
+}
+
+/// Bytes [`close`] holds to close the whole grid in one box: the padded grid's distances
+/// (f64) and solid mask, the rows the parallel transform gathers, and a block per
+/// worker.
+#[must_use]
+pub fn whole_bytes(spec: &crate::grid::GridSpec, radius: u32) -> u64 {
+    let p = 2 * u64::from(radius);
+    let [nz, ny, nx] = spec.shape.map(|c| c + p);
+    let threads = rayon::current_num_threads().max(1) as u64;
+    let c = spec.chunk.iter().product::<u64>();
+    nz * ny * nx * 9 + 2 * threads * nz * nx * 8 + threads * c
+}
+
+/// [`close`] in one box of the whole grid padded by `radius`.
+fn close_whole(
+    solid: &dyn BlockStore<u8>,
+    out: &dyn BlockStore<u8>,
+    radius: u32,
+    workers: usize,
+    progress: &dyn Progress,
+) -> Result<u64, crate::Error> {
+    let spec = solid.spec();
+    let blocks = spec.block_indices();
+    let p = radius as usize;
+    let [nz, ny, nx] = spec.shape.map(|c| c as usize);
+    let shape = [nz + 2 * p, ny + 2 * p, nx + 2 * p];
+    let at = |z: usize, y: usize, x: usize| ((z + p) * shape[1] + (y + p)) * shape[2] + (x + p);
+    progress.start(
+        &format!("voxelize: closing by {radius} voxels"),
+        2 * blocks.len() as u64,
+    );
+    let mut is_solid = vec![false; shape.iter().product()];
+    for &b in &blocks {
+        crate::progress::check_interrupt(progress)?;
+        let data = solid.read_block(b)?;
+        let st = spec.block_start(b).map(|c| c as usize);
+        let bs = spec.block_shape(b).map(|c| c as usize);
+        let mut o = 0;
+        for z in 0..bs[0] {
+            for y in 0..bs[1] {
+                let row = at(st[0] + z, st[1] + y, st[2]);
+                for (x, s) in is_solid[row..row + bs[2]].iter_mut().enumerate() {
+                    *s = data[o + x] == 1;
+                }
+                o += bs[2];
+            }
+        }
+        progress.advance(1);
+    }
+    let r2 = f64::from(radius * radius);
+    let mut g: Vec<f64> = is_solid
+        .iter()
+        .map(|&s| if s { 0.0 } else { f64::INFINITY })
+        .collect();
+    edt_sq_in_place(&mut g, shape, true);
+    crate::progress::check_interrupt(progress)?;
+    // The features of the second transform: the voxels the dilation leaves out.
+    for d in &mut g {
+        *d = if *d <= r2 { f64::INFINITY } else { 0.0 };
+    }
+    edt_sq_in_place(&mut g, shape, true);
+    let (g, is_solid) = (&g, &is_solid);
+    let added = map_bounded(&blocks, workers, |&b| -> Result<u64, crate::Error> {
+        crate::progress::check_interrupt(progress)?;
+        let st = spec.block_start(b).map(|c| c as usize);
+        let bs = spec.block_shape(b).map(|c| c as usize);
+        let mut data = Vec::with_capacity(bs.iter().product());
+        let mut n = 0u64;
+        for z in 0..bs[0] {
+            for y in 0..bs[1] {
+                for x in 0..bs[2] {
+                    let i = at(st[0] + z, st[1] + y, st[2] + x);
+                    data.push(if is_solid[i] {
+                        1
+                    } else if g[i] > r2 {
                         n += 1;
                         ADDED
                     } else {
@@ -402,7 +592,7 @@ mod tests {
             let chi0 = super::super::euler::euler_characteristic(&solid, 2).unwrap();
             assert_eq!(chi0, 0, "a ring");
             let out = MemStore::new(spec.clone(), 0u8);
-            let added = close(&solid, &out, 2, 2, &Silent).unwrap();
+            let added = close(&solid, &out, 2, 2, 0, &Silent).unwrap();
             // Inside the slit (2 x 16 x 8 voxels), less its top and bottom layers,
             // which the ball does not fit over.
             assert!(added > 0 && added <= 2 * 16 * 8, "chunk {chunk}: {added}");
@@ -417,6 +607,63 @@ mod tests {
             let chi1 = super::super::euler::euler_characteristic(&solid, 2).unwrap();
             assert_eq!(chi1, 1, "genus 0 after closing");
         }
+    }
+
+    #[test]
+    fn the_whole_grid_closing_gives_the_blocks_bytes() {
+        // A solid of scattered blobs and slabs reaching the grid's faces (where the
+        // padding matters), closed in blocks of 8 (room 0) and whole (room unlimited).
+        let spec = GridSpec {
+            shape: [21, 30, 26],
+            origin: [0.0; 3],
+            spacing: 1.0,
+            chunk: [8; 3],
+            unit: None,
+        };
+        let solid = MemStore::new(spec.clone(), 0u8);
+        crate::grid::fill_with(&solid, 1, |[z, y, x]| {
+            let h = (z * 73 + y * 151 + x * 37 + (z * y * x) % 11) % 97;
+            let slab = (3..9).contains(&z) && y > 2 && x < 24;
+            let pillar = (x as i64 - 20).pow(2) + (y as i64 - 5).pow(2) < 9;
+            u8::from(h < 23 || (slab && h % 3 != 0) || pillar)
+        })
+        .unwrap();
+        for radius in [1, 2, 3, 5] {
+            let (a, b) = (
+                MemStore::new(spec.clone(), 0u8),
+                MemStore::new(spec.clone(), 0u8),
+            );
+            let na = close(&solid, &a, radius, 2, 0, &Silent).unwrap();
+            let nb = close(&solid, &b, radius, 2, u64::MAX, &Silent).unwrap();
+            assert!(na > 0, "radius {radius}: the case adds nothing");
+            assert_eq!(na, nb, "radius {radius}");
+            for blk in spec.block_indices() {
+                assert_eq!(
+                    a.read_block(blk).unwrap(),
+                    b.read_block(blk).unwrap(),
+                    "radius {radius}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_parallel_transform_is_the_sequential_one() {
+        let shape = [9usize, 13, 11];
+        let n: usize = shape.iter().product();
+        let g0: Vec<f64> = (0..n)
+            .map(|i| {
+                if (i * 29) % 41 == 0 {
+                    0.0
+                } else {
+                    f64::INFINITY
+                }
+            })
+            .collect();
+        let (mut a, mut b) = (g0.clone(), g0);
+        edt_sq_in_place(&mut a, shape, false);
+        edt_sq_in_place(&mut b, shape, true);
+        assert_eq!(a, b);
     }
 
     #[test]
@@ -445,9 +692,9 @@ mod tests {
             }
             wide.write_block(b, &d).unwrap();
         }
-        close(&solid, &out, 1, 2, &Silent).unwrap();
+        close(&solid, &out, 1, 2, 0, &Silent).unwrap();
         assert_eq!(handles(&out, 10, 2, u64::MAX, &Silent).unwrap().len(), 1);
-        close(&wide, &out, 1, 2, &Silent).unwrap();
+        close(&wide, &out, 1, 2, 0, &Silent).unwrap();
         let h = handles(&out, 10, 2, u64::MAX, &Silent).unwrap();
         assert!(h.is_empty(), "{h:?}");
     }

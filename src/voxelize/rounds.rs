@@ -192,8 +192,8 @@ fn round(
     tally: &mut Tally,
     history: &mut Vec<(Idx3, [usize; 3], Vec<bool>)>,
 ) -> Result<i64, crate::Error> {
-    let (grid, w) = closing_grid("repair.u8", probe)?;
-    closing::close(env.solid, &*grid, probe, w, env.progress)?;
+    let (grid, w, room) = closing_grid("repair.u8", probe)?;
+    closing::close(env.solid, &*grid, probe, w, room, env.progress)?;
     let handles = closing::handles(&*grid, 4096, env.w_ccl, env.ccl_limit, env.progress)?;
     drop(grid);
     let margin = u64::from(probe) + 2;

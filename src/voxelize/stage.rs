@@ -155,18 +155,19 @@ pub fn voxelize(
     let closing_grid = |name: &str, r: u32| -> Result<_, crate::Error> {
         let mem = opts.scratch.in_memory(spec.num_voxels(), opts.mem, held);
         let grid = scratch_grid(&scratch_dir, &spec, mem, name)?;
+        let fixed = held + if mem { spec.num_voxels() } else { 0 };
         let workers = opts.mem.workers(
             &what(&format!("closing one block by {r} voxels")),
-            held + if mem { spec.num_voxels() } else { 0 },
+            fixed,
             closing::worker_bytes(c, r),
             threads,
         )?;
-        Ok((grid, workers))
+        Ok((grid, workers, opts.mem.work_bytes().saturating_sub(fixed)))
     };
     let mut closing_voxels = 0;
     if opts.close > 0 {
-        let (out, w) = closing_grid("closed.u8", opts.close)?;
-        closing_voxels = closing::close(solid, &*out, opts.close, w, progress)?;
+        let (out, w, room) = closing_grid("closed.u8", opts.close)?;
+        closing_voxels = closing::close(solid, &*out, opts.close, w, room, progress)?;
         closing::apply(solid, &*out, w)?;
         lap("closing", &mut t);
     }

@@ -16,9 +16,10 @@ use crate::grid::{BlockStore, GridSpec};
 use crate::input::Shape;
 use crate::progress::Progress;
 
-/// A scratch grid for a closing and the workers that fit beside it.
+/// A scratch grid for a closing, the workers that fit beside it, and the bytes the
+/// closing may hold ([`closing::close`]'s room).
 pub(super) type ClosingGrid<'a> =
-    dyn Fn(&str, u32) -> Result<(Box<dyn BlockStore<u8>>, usize), crate::Error> + 'a;
+    dyn Fn(&str, u32) -> Result<(Box<dyn BlockStore<u8>>, usize, u64), crate::Error> + 'a;
 
 /// What the step needs from the stage.
 pub(super) struct Env<'a> {
@@ -157,8 +158,8 @@ pub(super) fn settle(
     let molecule = matches!(env.shape, Shape::Molecule(_));
     let probe_r = rounds::probe_radius(env);
     if genus > 0 && !opts.skip_handle_search {
-        let (grid, w) = closing_grid("probe.u8", probe_r)?;
-        closing::close(env.solid, &*grid, probe_r, w, env.progress)?;
+        let (grid, w, room) = closing_grid("probe.u8", probe_r)?;
+        closing::close(env.solid, &*grid, probe_r, w, room, env.progress)?;
         out.handles = closing::handles(&*grid, 64, env.w_ccl, env.ccl_limit, env.progress)?;
         out.handle_radius = probe_r;
         lap("handles");
