@@ -329,6 +329,23 @@ fn untangling_the_starfish_keeps_its_arrivals_and_moves_only_the_seeds_it_counts
     assert!(u.median_move_deg < 1.0, "{u:?}");
     // Collisions measure the arrivals' squeeze, with or without untangling.
     assert_eq!(rep_b.collisions, rep_a.collisions);
+    // Only for a whole surface: with boundary seeds or a sample it is refused, and the
+    // table is left as it was.
+    for o in [
+        TraceOptions {
+            sample: Some(100),
+            ..on.clone()
+        },
+        TraceOptions {
+            untangle: true,
+            ..TraceOptions::for_seeds(SeedKind::Boundary)
+        },
+    ] {
+        let r = RunDir::open(&run).unwrap();
+        let e = trace(&r, &o, &Silent).unwrap_err().to_string();
+        assert!(e.contains("--untangle"), "{e}");
+        assert_eq!(bits(&read_seeds(&r).unwrap().theta), bits(&b.theta));
+    }
     // Recorded: a run traced again without the flag is traced plainly again.
     let (rep_c, c) = run_trace(&run, &plain);
     assert!(rep_c.untangle.is_none() && c.arrival_theta.is_empty());

@@ -104,9 +104,10 @@ pub struct TraceArgs {
     /// the steps.
     #[arg(long, value_name = "LN_U", help_heading = "Integrator")]
     pub level_step: Option<f64>,
-    /// Surface seeds: untangle the sphere map where its flat triangles turn over, by
-    /// moving each vertex of a flipped triangle toward the point that maximizes the
-    /// smallest area of its triangles (part of the way). theta and psi are then the
+    /// Surface seeds (without --sample): untangle the sphere map where its flat
+    /// triangles turn over, by moving each vertex of a flipped triangle toward the point
+    /// that maximizes the smallest area of its triangles (part of the way), and its
+    /// neighbours within 8 rings when that stalls. theta and psi are then the
     /// untangled map, the streamlines' arrivals are kept as arrival_theta and
     /// arrival_psi, and the report says how many seeds moved and how far (blub at
     /// 128: 445 flips to 55, median move 0.02 degrees). Flips that need whole regions

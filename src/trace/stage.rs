@@ -581,6 +581,15 @@ pub fn trace(
     progress: &dyn Progress,
 ) -> Result<TraceReport, crate::Error> {
     let t0 = Instant::now();
+    // Untangling needs every triangle of the surface: refused before anything is
+    // traced rather than silently skipped.
+    if opts.untangle && (opts.seeds != SeedKind::Surface || opts.sample.is_some()) {
+        return Err(options(
+            "--untangle works on the whole surface's sphere map: use it with surface seeds \
+             (the default) and without --sample"
+                .into(),
+        ));
+    }
     let _lock = run.lock()?;
     let _staged = run.staged_images(&["seeds"]);
     let spec: GridSpec = run.grid()?;
