@@ -638,15 +638,12 @@ pub fn trace(
     // triangles turn over; the arrivals are kept beside it.
     let whole_surface = tr.surface.as_ref().filter(|_| opts.sample.is_none());
     let untangled = whole_surface.filter(|_| opts.untangle).map(|m| {
-        let r = untangle::untangle(&m.triangles, &mut sphere);
+        let mut r = untangle::untangle(&m.triangles, &mut sphere);
         table.arrival_theta.clone_from(&table.theta);
         table.arrival_psi.clone_from(&table.psi);
-        for (i, p) in sphere.iter().enumerate() {
-            if let Some(p) = p {
-                if *p != super::unit(table.theta[i], table.psi[i]) {
-                    (table.theta[i], table.psi[i]) = super::angles(*p);
-                }
-            }
+        for i in std::mem::take(&mut r.moved) {
+            let p = sphere[i as usize].expect("moved seeds reached");
+            (table.theta[i as usize], table.psi[i as usize]) = super::angles(p);
         }
         r
     });

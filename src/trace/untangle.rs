@@ -86,6 +86,9 @@ pub struct UntangleReport {
     pub max_move_of_ring: f64,
     /// Bad triangles left.
     pub unresolved: u64,
+    /// The seeds whose sphere point moved, in index order (not recorded).
+    #[serde(skip)]
+    pub moved: Vec<u32>,
 }
 
 /// Untangle the sphere map `sphere[v]` (unit vectors; `None` where the seed did not
@@ -156,6 +159,7 @@ pub fn untangle(triangles: &[[u32; 3]], sphere: &mut [Option<DVec3>]) -> Untangl
         if p == a {
             continue;
         }
+        report.moved.push(v);
         moves.push(a.dot(p).clamp(-1.0, 1.0).acos().to_degrees());
         let ring = u
             .around(v)
@@ -317,13 +321,7 @@ impl<'a> Untangler<'a> {
                 (DVec2::new(d.y, -d.x), b.perp_dot(cc))
             })
             .collect();
-        let at = |x: DVec2| {
-            lines
-                .iter()
-                .map(|(a, k)| a.dot(x) + k)
-                .fold(f64::INFINITY, f64::min)
-        };
-        let now = at(DVec2::ZERO);
+        let now = smallest(&lines, DVec2::ZERO);
         let (best, top) = max_min(&lines)?;
         if top.is_nan() || top <= now || top <= 0.0 {
             return None;
@@ -365,18 +363,20 @@ impl<'a> Untangler<'a> {
     }
 }
 
+/// The smallest of the affine functions `a . x + k` at `x`.
+fn smallest(lines: &[(DVec2, f64)], x: DVec2) -> f64 {
+    lines
+        .iter()
+        .map(|(a, k)| a.dot(x) + k)
+        .fold(f64::INFINITY, f64::min)
+}
+
 /// The point that maximizes the smallest of the affine functions `a . x + k` (whose
 /// directions `a` span the plane positively, as the edges of a closed ring do, so that
 /// the maximum exists), and that smallest value: the best of the points where three of
 /// them are equal (a linear program in two unknowns, solved by its vertices).
 fn max_min(lines: &[(DVec2, f64)]) -> Option<(DVec2, f64)> {
     let n = lines.len();
-    let at = |x: DVec2| {
-        lines
-            .iter()
-            .map(|(a, k)| a.dot(x) + k)
-            .fold(f64::INFINITY, f64::min)
-    };
     let mut best: Option<(DVec2, f64)> = None;
     for i in 0..n {
         for j in (i + 1)..n {
@@ -395,7 +395,7 @@ fn max_min(lines: &[(DVec2, f64)]) -> Option<(DVec2, f64)> {
                 if !x.is_finite() {
                     continue;
                 }
-                let v = at(x);
+                let v = smallest(lines, x);
                 if best.is_none_or(|(_, b)| v > b) {
                     best = Some((x, v));
                 }

@@ -236,25 +236,10 @@ pub fn close(
         let dil: Vec<bool> = edt_sq(&solid_box, s).iter().map(|&d| d <= r2).collect();
         let outside: Vec<bool> = dil.iter().map(|&d| !d).collect();
         let ero = edt_sq(&outside, s);
-        let bs = spec.block_shape(b).map(|c| c as usize);
-        let mut data = Vec::with_capacity(bs.iter().product());
-        let mut n = 0u64;
-        for z in 0..bs[0] {
-            for y in 0..bs[1] {
-                for x in 0..bs[2] {
-                    let i = bx.offset(z + h, y + h, x + h);
-                    data.push(if solid_box[i] {
-                        1
-                    } else if ero[i] > r2 {
-                        n += 1;
-                        ADDED
-                    } else {
-                        0
-                    });
-                }
-            }
-        }
-        out.write_block(b, &data)?;
+        let n = write_closed(out, b, |z, y, x| {
+            let i = bx.offset(z + h, y + h, x + h);
+            (solid_box[i], ero[i] > r2)
+        })?;
         progress.advance(1);
         Ok(n)
     })?;
@@ -266,7 +251,7 @@ pub fn close(
 /// (f64) and solid mask, the rows the parallel transform gathers, and a block per
 /// worker.
 #[must_use]
-pub fn whole_bytes(spec: &crate::grid::GridSpec, radius: u32) -> u64 {
+fn whole_bytes(spec: &crate::grid::GridSpec, radius: u32) -> u64 {
     let p = 2 * u64::from(radius);
     let [nz, ny, nx] = spec.shape.map(|c| c + p);
     let threads = rayon::current_num_threads().max(1) as u64;
@@ -326,30 +311,44 @@ fn close_whole(
     let added = map_bounded(&blocks, workers, |&b| -> Result<u64, crate::Error> {
         crate::progress::check_interrupt(progress)?;
         let st = spec.block_start(b).map(|c| c as usize);
-        let bs = spec.block_shape(b).map(|c| c as usize);
-        let mut data = Vec::with_capacity(bs.iter().product());
-        let mut n = 0u64;
-        for z in 0..bs[0] {
-            for y in 0..bs[1] {
-                for x in 0..bs[2] {
-                    let i = at(st[0] + z, st[1] + y, st[2] + x);
-                    data.push(if is_solid[i] {
-                        1
-                    } else if g[i] > r2 {
-                        n += 1;
-                        ADDED
-                    } else {
-                        0
-                    });
-                }
-            }
-        }
-        out.write_block(b, &data)?;
+        let n = write_closed(out, b, |z, y, x| {
+            let i = at(st[0] + z, st[1] + y, st[2] + x);
+            (is_solid[i], g[i] > r2)
+        })?;
         progress.advance(1);
         Ok(n)
     })?;
     progress.finish();
     Ok(added.iter().sum())
+}
+
+/// Write block `b` of a closing into `out`: for each voxel (block coordinates z, y, x),
+/// `voxel` says whether it is solid and whether the closing holds it; 1 for the solid,
+/// [`ADDED`] for what the closing adds, 0 elsewhere. Returns the voxels added.
+fn write_closed(
+    out: &dyn BlockStore<u8>,
+    b: Idx3,
+    voxel: impl Fn(usize, usize, usize) -> (bool, bool),
+) -> Result<u64, crate::Error> {
+    let bs = out.spec().block_shape(b).map(|c| c as usize);
+    let mut data = Vec::with_capacity(bs.iter().product());
+    let mut n = 0u64;
+    for z in 0..bs[0] {
+        for y in 0..bs[1] {
+            for x in 0..bs[2] {
+                data.push(match voxel(z, y, x) {
+                    (true, _) => 1,
+                    (false, true) => {
+                        n += 1;
+                        ADDED
+                    }
+                    (false, false) => 0,
+                });
+            }
+        }
+    }
+    out.write_block(b, &data)?;
+    Ok(n)
 }
 
 /// A place where closing removes handles.
@@ -562,14 +561,19 @@ mod tests {
         }
     }
 
-    fn ring_spec(chunk: u64) -> GridSpec {
+    /// A grid of unit voxels at the origin.
+    fn unit_spec(shape: Idx3, chunk: u64) -> GridSpec {
         GridSpec {
-            shape: [24, 40, 40],
+            shape,
             origin: [0.0; 3],
             spacing: 1.0,
             chunk: [chunk; 3],
             unit: None,
         }
+    }
+
+    fn ring_spec(chunk: u64) -> GridSpec {
+        unit_spec([24, 40, 40], chunk)
     }
 
     /// A thick ring (genus 1) whose hole is a slit 2 voxels wide.
@@ -613,13 +617,7 @@ mod tests {
     fn the_whole_grid_closing_gives_the_blocks_bytes() {
         // A solid of scattered blobs and slabs reaching the grid's faces (where the
         // padding matters), closed in blocks of 8 (room 0) and whole (room unlimited).
-        let spec = GridSpec {
-            shape: [21, 30, 26],
-            origin: [0.0; 3],
-            spacing: 1.0,
-            chunk: [8; 3],
-            unit: None,
-        };
+        let spec = unit_spec([21, 30, 26], 8);
         let solid = MemStore::new(spec.clone(), 0u8);
         crate::grid::fill_with(&solid, 1, |[z, y, x]| {
             let h = (z * 73 + y * 151 + x * 37 + (z * y * x) % 11) % 97;
