@@ -22,8 +22,8 @@ pub struct SeedTable {
     pub theta: Vec<f64>,
     /// Azimuth of arrival (radians; NaN where it did not reach).
     pub psi: Vec<f64>,
-    /// For a whole surface's seeds: the polar angle at which the streamline arrived,
-    /// before untangling ([`super::untangle`]; else empty). `theta` differs from it only
+    /// Traced with `untangle`: the polar angle at which the streamline arrived, before
+    /// untangling ([`super::untangle`]; else empty). `theta` differs from it only
     /// at the seeds the untangling moved.
     pub arrival_theta: Vec<f64>,
     /// Likewise the azimuth.
@@ -97,10 +97,10 @@ pub(super) fn write_seeds(
             "rows": t.position.len(),
             "columns": {
                 "position": "world x, y, z of the seed",
-                "theta": "polar angle on the sphere, radians (NaN: did not reach); for a whole surface, untangled",
-                "psi": "azimuth on the sphere, radians (NaN: did not reach); for a whole surface, untangled",
-                "arrival_theta": "whole surfaces: polar angle at which the streamline arrived, before untangling",
-                "arrival_psi": "whole surfaces: azimuth at which the streamline arrived, before untangling",
+                "theta": "polar angle on the sphere, radians (NaN: did not reach); of the untangled map when traced with --untangle",
+                "psi": "azimuth on the sphere, radians (NaN: did not reach); of the untangled map when traced with --untangle",
+                "arrival_theta": "traced with --untangle: polar angle at which the streamline arrived, before untangling",
+                "arrival_psi": "traced with --untangle: azimuth at which the streamline arrived, before untangling",
                 "phi": "phi at the seed",
                 "stop": "stop reason code",
                 "steps": "accepted RK45 steps",
