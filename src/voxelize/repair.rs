@@ -101,11 +101,6 @@ impl Flat {
         ]
     }
 
-    /// The linear offset of the neighbourhood position `b`.
-    pub(super) fn offset(&self, b: usize) -> isize {
-        self.off[b]
-    }
-
     /// Whether voxel `i` is on a face of the grid.
     pub(super) fn on_face(&self, i: usize) -> bool {
         let [z, y, x] = self.zyx(i);

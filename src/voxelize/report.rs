@@ -36,6 +36,11 @@ pub struct TopologyRepair {
     pub regions: Vec<RepairRegion>,
     /// Seconds the repair took.
     pub seconds: f64,
+    /// Bricks of 16^3 voxels the compact cut read back from its scratch file (its
+    /// cache's misses), when the cut's records did not all fit in memory; absent
+    /// otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scratch_brick_reads: Option<u64>,
 }
 
 /// One connected region of voxels the repair changed.

@@ -58,6 +58,7 @@ struct Tally {
     specks: u64,
     speck_voxels: u64,
     alternative: u64,
+    brick_reads: Option<u64>,
     regions: Vec<repair::Region>,
 }
 
@@ -241,27 +242,30 @@ fn round(
 
 /// The compact cut of the whole solid (`solid` voxels after the tidying), when it fits
 /// in what `--mem` leaves, of the solid with Euler characteristic `chi`; tallied.
-fn compact_cut(env: &Env, tally: &mut Tally, solid: u64, chi: i64) -> Result<(), crate::Error> {
-    let voxels = env.spec.num_voxels();
-    let need = compact::bytes_needed(voxels, solid);
+fn compact_cut(env: &Env, tally: &mut Tally, chi: i64) -> Result<(), crate::Error> {
+    let need = compact::bytes_needed(env.spec);
     if need > env.room {
+        let [_, ny, nx] = env.spec.shape;
         return Err(VoxelizeError::Topology(format!(
-            "{}: the topology repair of a grid of {voxels} voxels, {solid} of them solid, holds {} ({} bytes a voxel of the grid and {} a solid voxel), more than the {} --mem {} leaves; give more --mem, a coarser grid, or --topology strict / --allow-genus",
+            "{}: the topology repair of a grid of {} voxels holds at least {} ({} bytes a voxel of one {ny} x {nx} slice, and a cache of bricks), more than the {} --mem {} leaves; give more --mem, a coarser grid, or --topology strict / --allow-genus",
             env.source_name,
+            env.spec.num_voxels(),
             human(need),
-            compact::BYTES_PER_GRID_VOXEL,
-            compact::BYTES_PER_SOLID_VOXEL,
+            compact::BYTES_PER_SLICE_VOXEL,
             human(env.room),
             env.opts.mem
         ))
         .into());
     }
-    let o = compact::cut(env.solid, mesh(env), env.progress)?;
+    let o = compact::cut(env.solid, mesh(env), env.scratch, env.room, env.progress)?;
     tally.removed += o.removed;
     tally.cut += 1 - chi;
     // The fill is not tried on this path.
     tally.alternative = u64::MAX;
     tally.regions.extend(o.regions);
+    if o.spilled {
+        tally.brick_reads = Some(o.brick_reads);
+    }
     Ok(())
 }
 
@@ -318,8 +322,7 @@ pub(super) fn run_repair(
     // A large grid: the compact cut, without closings.
     let compact = env.spec.num_voxels() > COMPACT_ABOVE.with(Cell::get);
     if compact && chi != 1 {
-        let solid = solid_voxels + tally.added - tally.speck_voxels;
-        compact_cut(env, &mut tally, solid, chi)?;
+        compact_cut(env, &mut tally, chi)?;
         chi = 1;
     }
     for _ in 0..MAX_ROUNDS {
@@ -360,8 +363,7 @@ pub(super) fn run_repair(
     }
     if chi != 1 && !whole_grid {
         // Larger than the grid-wide repair takes: the compact cut.
-        let solid = solid_voxels + tally.added - tally.speck_voxels;
-        compact_cut(env, &mut tally, solid, chi)?;
+        compact_cut(env, &mut tally, chi)?;
         chi = 1;
     }
     if chi != 1 {
@@ -442,6 +444,7 @@ pub(super) fn run_repair(
         fraction,
         regions,
         seconds: t.elapsed().as_secs_f64(),
+        scratch_brick_reads: tally.brick_reads,
     };
     if fraction > 1e-3 {
         warnings.push(format!(

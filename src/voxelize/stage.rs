@@ -209,6 +209,7 @@ pub fn voxelize(
         w_ccl,
         ccl_limit,
         room: opts.mem.work_bytes().saturating_sub(held),
+        scratch: &scratch_dir,
         progress,
     };
     let settled = topology::settle(&env, &closing_grid, &mut warnings, &mut |n| {

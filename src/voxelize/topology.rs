@@ -33,6 +33,8 @@ pub(super) struct Env<'a> {
     pub ccl_limit: u64,
     /// Bytes the repair may hold.
     pub room: u64,
+    /// Where the repair's scratch files go (the stage's scratch directory).
+    pub scratch: &'a std::path::Path,
     pub progress: &'a dyn Progress,
 }
 
