@@ -27,10 +27,9 @@
 #![allow(clippy::many_single_char_names)]
 
 use std::collections::{BTreeMap, BinaryHeap};
-use std::fs::File;
-use std::os::unix::fs::FileExt;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
+use super::bricks::{Bricks, BRICK, BRICK_BYTES, EDGE, MIN_CACHE, SHIFT};
 use super::closing::dt1d;
 use super::repair::{Flat, Region, ALL, FACES};
 use super::simple::is_simple;
@@ -39,19 +38,6 @@ use crate::grid::{human, BlockStore, GridError, GridSpec};
 use crate::input::TriMesh;
 use crate::math::Idx3;
 use crate::progress::Progress;
-
-/// log2 of a brick's edge in voxels.
-const SHIFT: usize = 4;
-/// A brick's edge in voxels.
-const EDGE: usize = 1 << SHIFT;
-/// A voxel's place along an axis within its brick: its coordinate `& MASK`.
-const MASK: usize = EDGE - 1;
-/// Voxels of a brick.
-const BRICK: usize = EDGE * EDGE * EDGE;
-/// Bytes of a brick.
-const BRICK_BYTES: u64 = BRICK as u64 * 4;
-/// The fewest bricks the cache holds (a neighbourhood spans at most 8).
-const MIN_CACHE: usize = 8;
 
 /// A record's flags: a solid voxel; one of the growing set; in the queue; popped
 /// while not simple (looked at again when its neighbourhood changes).
@@ -62,9 +48,6 @@ const WAITING: u32 = 1 << 28;
 /// A record's depth bits. Depths are below 2^28: the deepest voxel of a grid of fewer
 /// than 2^32 voxels is at most 813 voxels deep, 42 Mi in the depths' units.
 const DEPTH: u32 = WAITING - 1;
-/// No brick (not stored; not cached).
-const NONE: u32 = u32::MAX;
-
 /// Bytes a voxel of one slice of the grid takes in the depth passes: a layer of 16
 /// slices of labels (1 byte) and records (4 bytes), one slice of the distance
 /// transform (8 bytes), or a layer of distances to the mesh (4 bytes).
@@ -93,237 +76,6 @@ pub struct Outcome {
     pub spilled: bool,
     /// Bricks read from the scratch file by the growth (cache misses).
     pub brick_reads: u64,
-}
-
-/// The grid's records, brick by brick.
-struct Bricks {
-    n: [usize; 3],
-    nb: [usize; 3],
-    /// Where each brick is stored, by its position among the stored ones; NONE: none
-    /// of its voxels is solid.
-    at: Vec<u32>,
-    stored: usize,
-    /// The scratch file, when the bricks do not all fit in memory.
-    file: Option<(File, PathBuf)>,
-    /// Memory: every stored brick at its position. File: the cached bricks, one a slot.
-    data: Vec<u32>,
-    /// File: the slot of each stored brick (NONE: not cached), the brick in each slot,
-    /// whether it was written since it was read, whether it was used since the clock
-    /// hand last passed it, and the hand.
-    slot_of: Vec<u32>,
-    owner: Vec<u32>,
-    dirty: Vec<bool>,
-    used: Vec<bool>,
-    hand: usize,
-    reads: u64,
-}
-
-impl Bricks {
-    fn new(n: [usize; 3], file: Option<(File, PathBuf)>) -> Self {
-        let nb = n.map(|c| c.div_ceil(EDGE));
-        Self {
-            n,
-            nb,
-            at: vec![NONE; nb.iter().product()],
-            stored: 0,
-            file,
-            data: Vec::new(),
-            slot_of: Vec::new(),
-            owner: Vec::new(),
-            dirty: Vec::new(),
-            used: Vec::new(),
-            hand: 0,
-            reads: 0,
-        }
-    }
-
-    fn io(&self, e: std::io::Error) -> GridError {
-        GridError::Io {
-            path: self.file.as_ref().map(|f| f.1.clone()).unwrap_or_default(),
-            source: e,
-        }
-    }
-
-    /// The brick holding voxel `[z, y, x]`, and the voxel's place in it.
-    fn locate(&self, z: usize, y: usize, x: usize) -> (usize, usize) {
-        (
-            ((z >> SHIFT) * self.nb[1] + (y >> SHIFT)) * self.nb[2] + (x >> SHIFT),
-            ((z & MASK) << (2 * SHIFT)) | ((y & MASK) << SHIFT) | (x & MASK),
-        )
-    }
-
-    /// Store brick `id` (not stored before) with the records `rec`.
-    fn append(&mut self, id: usize, rec: &[u32]) -> Result<(), GridError> {
-        let p = self.stored;
-        self.at[id] = p as u32;
-        self.stored += 1;
-        match &self.file {
-            None => self.data.extend_from_slice(rec),
-            Some((f, _)) => f
-                .write_all_at(bytemuck::cast_slice(rec), p as u64 * BRICK_BYTES)
-                .map_err(|e| self.io(e))?,
-        }
-        Ok(())
-    }
-
-    /// Read the stored brick at position `p` (not through the cache).
-    fn read_raw(&self, p: u32, out: &mut [u32]) -> Result<(), GridError> {
-        match &self.file {
-            None => out.copy_from_slice(&self.data[p as usize * BRICK..][..BRICK]),
-            Some((f, _)) => f
-                .read_exact_at(bytemuck::cast_slice_mut(out), u64::from(p) * BRICK_BYTES)
-                .map_err(|e| self.io(e))?,
-        }
-        Ok(())
-    }
-
-    /// Write the stored brick at position `p` (not through the cache).
-    fn write_raw(&mut self, p: u32, rec: &[u32]) -> Result<(), GridError> {
-        match &self.file {
-            None => self.data[p as usize * BRICK..][..BRICK].copy_from_slice(rec),
-            Some((f, _)) => f
-                .write_all_at(bytemuck::cast_slice(rec), u64::from(p) * BRICK_BYTES)
-                .map_err(|e| self.io(e))?,
-        }
-        Ok(())
-    }
-
-    /// Make room for `slots` cached bricks (file only; from here on, go through the
-    /// cache).
-    fn open_cache(&mut self, slots: usize) {
-        if self.file.is_some() {
-            let slots = slots.clamp(MIN_CACHE, self.stored.max(MIN_CACHE));
-            self.data = vec![0; slots * BRICK];
-            self.slot_of = vec![NONE; self.stored];
-            self.owner = vec![NONE; slots];
-            self.dirty = vec![false; slots];
-            self.used = vec![false; slots];
-        }
-    }
-
-    /// The first record of stored brick `p` in `data`, read into the cache if need be.
-    fn slot(&mut self, p: u32) -> Result<usize, GridError> {
-        if self.file.is_none() {
-            return Ok(p as usize * BRICK);
-        }
-        let s = self.slot_of[p as usize];
-        if s != NONE {
-            self.used[s as usize] = true;
-            return Ok(s as usize * BRICK);
-        }
-        // The clock: the first slot not used since the hand last passed.
-        let slots = self.owner.len();
-        while self.used[self.hand] {
-            self.used[self.hand] = false;
-            self.hand = (self.hand + 1) % slots;
-        }
-        let s = self.hand;
-        self.hand = (self.hand + 1) % slots;
-        let old = self.owner[s];
-        let (f, path) = self.file.as_ref().expect("file mode");
-        let io = |e| GridError::Io {
-            path: path.clone(),
-            source: e,
-        };
-        let buf = &mut self.data[s * BRICK..][..BRICK];
-        if old != NONE {
-            if self.dirty[s] {
-                f.write_all_at(bytemuck::cast_slice(buf), u64::from(old) * BRICK_BYTES)
-                    .map_err(io)?;
-            }
-            self.slot_of[old as usize] = NONE;
-        }
-        f.read_exact_at(bytemuck::cast_slice_mut(buf), u64::from(p) * BRICK_BYTES)
-            .map_err(io)?;
-        self.reads += 1;
-        self.owner[s] = p;
-        self.slot_of[p as usize] = s as u32;
-        self.dirty[s] = false;
-        self.used[s] = true;
-        Ok(s * BRICK)
-    }
-
-    /// Write every cached brick that changed back to the file.
-    fn flush(&mut self) -> Result<(), GridError> {
-        if let Some((f, _)) = &self.file {
-            for s in 0..self.owner.len() {
-                if self.dirty[s] {
-                    f.write_all_at(
-                        bytemuck::cast_slice(&self.data[s * BRICK..][..BRICK]),
-                        u64::from(self.owner[s]) * BRICK_BYTES,
-                    )
-                    .map_err(|e| self.io(e))?;
-                    self.dirty[s] = false;
-                }
-            }
-        }
-        Ok(())
-    }
-
-    fn zyx(&self, i: usize) -> [usize; 3] {
-        [
-            i / (self.n[1] * self.n[2]),
-            (i / self.n[2]) % self.n[1],
-            i % self.n[2],
-        ]
-    }
-
-    /// Set the record of solid voxel `i`.
-    fn set(&mut self, i: usize, rec: u32) -> Result<(), GridError> {
-        let [z, y, x] = self.zyx(i);
-        let (id, l) = self.locate(z, y, x);
-        let p = self.at[id];
-        debug_assert!(p != NONE, "only solid voxels change");
-        let s = self.slot(p)?;
-        self.data[s + l] = rec;
-        if self.file.is_some() {
-            self.dirty[s / BRICK] = true;
-        }
-        Ok(())
-    }
-
-    /// The records of the 27 voxels around voxel `i` (bit order of
-    /// [`super::simple`]); a voxel outside the grid reads 0, as the padding of a brick
-    /// at the grid's edge does (not solid).
-    fn hood(&mut self, i: usize) -> Result<[u32; 27], GridError> {
-        let [z, y, x] = self.zyx(i);
-        let mut out = [0u32; 27];
-        let inner = |c: usize| (1..MASK).contains(&(c & MASK));
-        if inner(z) && inner(y) && inner(x) {
-            // The whole neighbourhood is in this brick.
-            let (id, l) = self.locate(z, y, x);
-            let p = self.at[id];
-            if p == NONE {
-                return Ok(out);
-            }
-            let s = self.slot(p)? + l;
-            for (b, o) in out.iter_mut().enumerate() {
-                let (dz, dy, dx) = (b / 9, (b / 3) % 3, b % 3);
-                let off = (dz << (2 * SHIFT)) + (dy << SHIFT) + dx;
-                *o = self.data[s + off - (1 << (2 * SHIFT)) - (1 << SHIFT) - 1];
-            }
-            return Ok(out);
-        }
-        for (b, o) in out.iter_mut().enumerate() {
-            let (Some(zz), Some(yy), Some(xx)) = (
-                (z + b / 9).checked_sub(1),
-                (y + (b / 3) % 3).checked_sub(1),
-                (x + b % 3).checked_sub(1),
-            ) else {
-                continue;
-            };
-            if zz >= self.n[0] || yy >= self.n[1] || xx >= self.n[2] {
-                continue;
-            }
-            let (id, l) = self.locate(zz, yy, xx);
-            let p = self.at[id];
-            if p != NONE {
-                let s = self.slot(p)?;
-                *o = self.data[s + l];
-            }
-        }
-        Ok(out)
-    }
 }
 
 /// Cut the solid `{v == 1}` of `store` (one piece, no cavity) to a genus-0 piece in
@@ -357,18 +109,14 @@ pub fn cut(
     let queue_room = left / 4;
     let brick_room = left - queue_room;
     let all_bricks = n.map(|c| c.div_ceil(EDGE) as u64).iter().product::<u64>();
-    let file = if all_bricks * BRICK_BYTES + slices <= brick_room {
-        None
-    } else {
-        Some(scratch_file(scratch)?)
-    };
-    let mut bricks = Bricks::new(n, file);
+    let in_memory = all_bricks * BRICK_BYTES + slices <= brick_room;
+    let mut bricks = Bricks::new(n, (!in_memory).then_some(scratch))?;
     let count = records(store, &mut bricks)?;
     let seed = depths(&mut bricks, surface)?;
     let Some(seed) = seed else {
         return Err(super::VoxelizeError::Options("no solid voxel to repair".into()).into());
     };
-    let spilled = bricks.file.is_some();
+    let spilled = bricks.spilled();
     bricks.open_cache((brick_room / BRICK_BYTES) as usize);
     progress.start("voxelize: repair: compact cut", count);
     let grown = grow(&mut bricks, seed, (queue_room / 8).max(1 << 16), progress);
@@ -378,10 +126,7 @@ pub fn cut(
 
     let removed = removed(&bricks)?;
     let brick_reads = bricks.reads;
-    if let Some((f, path)) = bricks.file.take() {
-        drop(f);
-        let _ = std::fs::remove_file(path);
-    }
+    // Removes the scratch file.
     drop(bricks);
     let flat = Flat::new(n);
     let mut regions = regions_of(&flat, &removed);
@@ -415,47 +160,18 @@ pub fn cut(
     })
 }
 
-/// The scratch file of the bricks, `cut.bricks` in `scratch` (created, or truncated).
-fn scratch_file(scratch: &Path) -> Result<(File, PathBuf), GridError> {
-    std::fs::create_dir_all(scratch).map_err(|e| GridError::Io {
-        path: scratch.to_path_buf(),
-        source: e,
-    })?;
-    let path = scratch.join("cut.bricks");
-    let f = File::options()
-        .read(true)
-        .write(true)
-        .create(true)
-        .truncate(true)
-        .open(&path)
-        .map_err(|e| GridError::Io {
-            path: path.clone(),
-            source: e,
-        })?;
-    Ok((f, path))
-}
-
 /// The voxels solid and not kept, as sorted linear indices (the cache flushed first).
 fn removed(bricks: &Bricks) -> Result<Vec<u32>, GridError> {
     let [_, ny, nx] = bricks.n;
-    let nb = bricks.nb;
     let mut removed: Vec<u32> = Vec::new();
     let mut buf = vec![0u32; BRICK];
-    for bz in 0..nb[0] {
-        for by in 0..nb[1] {
-            for bx in 0..nb[2] {
-                let p = bricks.at[(bz * nb[1] + by) * nb[2] + bx];
-                if p == NONE {
-                    continue;
-                }
-                bricks.read_raw(p, &mut buf)?;
-                for (l, &r) in buf.iter().enumerate() {
-                    if r & SOLID != 0 && r & KEPT == 0 {
-                        let z = bz * EDGE + (l >> (2 * SHIFT));
-                        let y = by * EDGE + ((l >> SHIFT) & MASK);
-                        let x = bx * EDGE + (l & MASK);
-                        removed.push(((z * ny + y) * nx + x) as u32);
-                    }
+    for bz in 0..bricks.nb[0] {
+        for (b, p) in bricks.layer(bz) {
+            bricks.read_raw(p, &mut buf)?;
+            for (l, &r) in buf.iter().enumerate() {
+                if r & SOLID != 0 && r & KEPT == 0 {
+                    let [z, y, x] = Bricks::voxel(b, l);
+                    removed.push(((z * ny + y) * nx + x) as u32);
                 }
             }
         }
@@ -530,7 +246,7 @@ fn records(store: &dyn BlockStore<u8>, bricks: &mut Bricks) -> Result<u64, crate
                     }
                 }
                 if any {
-                    bricks.append((bz * nb[1] + by) * nb[2] + bx, &rec)?;
+                    bricks.append([bz, by, bx], &rec)?;
                 }
             }
         }
@@ -570,22 +286,23 @@ fn depths(
     let (mut f, mut d) = (vec![0.0; nz], vec![0.0; nz]);
     let (mut v, mut zs) = (vec![0usize; nz], vec![0.0; nz + 1]);
     let mut col = vec![0.0f64; nz * EDGE * EDGE];
-    let mut rec = vec![0u32; BRICK];
+    // The column's stored bricks: their layer, where they are stored, their records.
+    let mut column: Vec<(usize, u32, Vec<u32>)> = Vec::new();
     for by in 0..nb[1] {
         for bx in 0..nb[2] {
-            let ids: Vec<usize> = (0..nb[0])
-                .map(|bz| (bz * nb[1] + by) * nb[2] + bx)
-                .collect();
-            if ids.iter().all(|&id| bricks.at[id] == NONE) {
+            column.clear();
+            for bz in 0..nb[0] {
+                if let Some(p) = bricks.stored([bz, by, bx]) {
+                    let mut rec = vec![0u32; BRICK];
+                    bricks.read_raw(p, &mut rec)?;
+                    column.push((bz, p, rec));
+                }
+            }
+            if column.is_empty() {
                 continue;
             }
             col.fill(0.0);
-            for (bz, &id) in ids.iter().enumerate() {
-                let p = bricks.at[id];
-                if p == NONE {
-                    continue;
-                }
-                bricks.read_raw(p, &mut rec)?;
+            for (bz, _, rec) in &column {
                 for (l, &r) in rec.iter().enumerate() {
                     let z = bz * EDGE + (l >> (2 * SHIFT));
                     if z < nz && r != 0 {
@@ -604,19 +321,14 @@ fn depths(
                     );
                 }
             }
-            for (bz, &id) in ids.iter().enumerate() {
-                let p = bricks.at[id];
-                if p == NONE {
-                    continue;
-                }
-                bricks.read_raw(p, &mut rec)?;
+            for (bz, p, rec) in &mut column {
                 for (l, r) in rec.iter_mut().enumerate() {
-                    let z = bz * EDGE + (l >> (2 * SHIFT));
+                    let z = *bz * EDGE + (l >> (2 * SHIFT));
                     if z < nz && *r != 0 {
                         *r = to_u32(col[z * EDGE * EDGE + (l & (EDGE * EDGE - 1))]);
                     }
                 }
-                bricks.write_raw(p, &rec)?;
+                bricks.write_raw(*p, rec)?;
             }
         }
     }
@@ -628,29 +340,25 @@ fn depths(
         let near = surface.map_or_else(Vec::new, |(mesh, grid)| {
             mesh_band(mesh, grid, [z0 as u64, 0, 0], [h, ny, nx])
         });
-        for by in 0..nb[1] {
-            for bx in 0..nb[2] {
-                let p = bricks.at[(bz * nb[1] + by) * nb[2] + bx];
-                if p == NONE {
+        let mut rec = vec![0u32; BRICK];
+        let layer: Vec<_> = bricks.layer(bz).collect();
+        for (b, p) in layer {
+            bricks.read_raw(p, &mut rec)?;
+            for (l, r) in rec.iter_mut().enumerate() {
+                if *r == 0 {
                     continue;
                 }
-                bricks.read_raw(p, &mut rec)?;
-                for (l, r) in rec.iter_mut().enumerate() {
-                    if *r == 0 {
-                        continue;
-                    }
-                    let (lz, ly, lx) = (l >> (2 * SHIFT), (l >> SHIFT) & MASK, l & MASK);
-                    let k = (lz * ny + by * EDGE + ly) * nx + bx * EDGE + lx;
-                    let depth = depth_of(*r, near.get(k).copied().unwrap_or(f32::INFINITY));
-                    let depth = depth.min(DEPTH);
-                    *r = SOLID | depth;
-                    let i = ((z0 + lz) * ny + by * EDGE + ly) * nx + bx * EDGE + lx;
-                    if best.is_none_or(|(bd, bi)| depth > bd || depth == bd && i < bi) {
-                        best = Some((depth, i));
-                    }
+                let [z, y, x] = Bricks::voxel(b, l);
+                let k = ((z - z0) * ny + y) * nx + x;
+                let depth = depth_of(*r, near.get(k).copied().unwrap_or(f32::INFINITY));
+                let depth = depth.min(DEPTH);
+                *r = SOLID | depth;
+                let i = (z * ny + y) * nx + x;
+                if best.is_none_or(|(bd, bi)| depth > bd || depth == bd && i < bi) {
+                    best = Some((depth, i));
                 }
-                bricks.write_raw(p, &rec)?;
             }
+            bricks.write_raw(p, &rec)?;
         }
     }
     Ok(best.map(|b| b.1))

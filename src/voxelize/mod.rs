@@ -15,6 +15,7 @@
 //! [`stage`] runs them in order; [`prepare`] fits the grid to the shape first.
 
 mod balls;
+mod bricks;
 mod center;
 mod center_ball;
 mod classify;
