@@ -297,6 +297,9 @@ type Moved = (Line, Vec<DVec3>);
 /// streamlines, slice by slice.
 type Visit = (Option<(u64, Arc<Tile>)>, Vec<(Vec<Done>, Vec<Moved>)>);
 
+/// Lines advanced between two looks at the stop token (see the trace loop).
+const STOP_CHECK_LINES: usize = 8;
+
 /// Advance the streamlines of `slice` in `tile` (owning the cells `[lo, hi)`) until each
 /// ends or leaves.
 fn advance_slice(
@@ -499,13 +502,22 @@ pub fn trace_tiled_with(
                     .par_chunks(512)
                     .with_max_len(1)
                     .map(|slice| {
-                        // Stopping: the lines go back to wait unchanged, and the next
-                        // round's check ends the trace (a slice is a fraction of a second).
-                        if progress.interrupted() {
-                            let back = slice.iter().map(|l| (*l, Vec::new())).collect();
-                            return (Vec::new(), back);
+                        // Stopping: the lines not yet advanced go back to wait unchanged,
+                        // and the next round's check ends the trace. The token is looked
+                        // at every few lines: with small steps a whole slice can take
+                        // seconds, a few lines a small fraction of one.
+                        let (mut done, mut moved) = (Vec::new(), Vec::new());
+                        for (i, few) in slice.chunks(STOP_CHECK_LINES).enumerate() {
+                            if progress.interrupted() {
+                                let rest = &slice[i * STOP_CHECK_LINES..];
+                                moved.extend(rest.iter().map(|l| (*l, Vec::new())));
+                                break;
+                            }
+                            let (d, m) = advance_slice(few, &tile, lo, hi, rk, ball, record_paths);
+                            done.extend(d);
+                            moved.extend(m);
                         }
-                        advance_slice(slice, &tile, lo, hi, rk, ball, record_paths)
+                        (done, moved)
                     })
                     .collect();
                 Ok((new.then_some((k, tile)), results))
