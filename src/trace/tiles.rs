@@ -301,7 +301,9 @@ type Visit = (Option<(u64, Arc<Tile>)>, Vec<(Vec<Done>, Vec<Moved>)>);
 const STOP_CHECK_LINES: usize = 8;
 
 /// Advance the streamlines of `slice` in `tile` (owning the cells `[lo, hi)`) until each
-/// ends or leaves.
+/// ends or leaves, pushing each onto the pair of lists given: those that ended, and
+/// those that left.
+#[allow(clippy::too_many_arguments)]
 fn advance_slice(
     slice: &[Line],
     tile: &Tile,
@@ -310,11 +312,10 @@ fn advance_slice(
     rk: &Rk45,
     ball: &StopBall,
     record_paths: bool,
-) -> (Vec<Done>, Vec<Moved>) {
-    let mut done = Vec::new();
-    let mut moved = Vec::new();
+    (done, moved): (&mut Vec<Done>, &mut Vec<Moved>),
+) {
     advance_all(
-        slice.to_vec(),
+        slice.iter().copied(),
         tile,
         lo,
         hi,
@@ -335,7 +336,6 @@ fn advance_slice(
             Advance::Moved => moved.push((l, path)),
         },
     );
-    (done, moved)
 }
 
 /// Trace every line of `lines` to its end. `phi` is read through a chunk cache; tiles are
@@ -507,15 +507,13 @@ pub fn trace_tiled_with(
                         // at every few lines: with small steps a whole slice can take
                         // seconds, a few lines a small fraction of one.
                         let (mut done, mut moved) = (Vec::new(), Vec::new());
-                        for (i, few) in slice.chunks(STOP_CHECK_LINES).enumerate() {
+                        for few in slice.chunks(STOP_CHECK_LINES) {
                             if progress.interrupted() {
-                                let rest = &slice[i * STOP_CHECK_LINES..];
-                                moved.extend(rest.iter().map(|l| (*l, Vec::new())));
-                                break;
+                                moved.extend(few.iter().map(|l| (*l, Vec::new())));
+                            } else {
+                                let out = (&mut done, &mut moved);
+                                advance_slice(few, &tile, lo, hi, rk, ball, record_paths, out);
                             }
-                            let (d, m) = advance_slice(few, &tile, lo, hi, rk, ball, record_paths);
-                            done.extend(d);
-                            moved.extend(m);
                         }
                         (done, moved)
                     })

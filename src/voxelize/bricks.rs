@@ -85,7 +85,7 @@ impl Bricks {
     /// Where brick `b` (`[z, y, x]` in bricks) is stored; None: none of its voxels is
     /// solid.
     pub(super) fn stored(&self, b: [usize; 3]) -> Option<u32> {
-        let p = self.at[(b[0] * self.nb[1] + b[1]) * self.nb[2] + b[2]];
+        let p = self.at[self.index(b)];
         (p != NONE).then_some(p)
     }
 
@@ -112,10 +112,15 @@ impl Bricks {
         }
     }
 
+    /// Brick `b`'s (`[z, y, x]` in bricks) index among all the grid's bricks.
+    fn index(&self, b: [usize; 3]) -> usize {
+        (b[0] * self.nb[1] + b[1]) * self.nb[2] + b[2]
+    }
+
     /// The brick holding voxel `[z, y, x]`, and the voxel's place in it.
     fn locate(&self, z: usize, y: usize, x: usize) -> (usize, usize) {
         (
-            ((z >> SHIFT) * self.nb[1] + (y >> SHIFT)) * self.nb[2] + (x >> SHIFT),
+            self.index([z >> SHIFT, y >> SHIFT, x >> SHIFT]),
             ((z & MASK) << (2 * SHIFT)) | ((y & MASK) << SHIFT) | (x & MASK),
         )
     }
@@ -123,7 +128,8 @@ impl Bricks {
     /// Store brick `b` (not stored before) with the records `rec`.
     pub(super) fn append(&mut self, b: [usize; 3], rec: &[u32]) -> Result<(), GridError> {
         let p = self.stored;
-        self.at[(b[0] * self.nb[1] + b[1]) * self.nb[2] + b[2]] = p as u32;
+        let id = self.index(b);
+        self.at[id] = p as u32;
         self.stored += 1;
         match &self.file {
             None => self.data.extend_from_slice(rec),

@@ -270,7 +270,6 @@ fn compact_cut(env: &Env, tally: &mut Tally, chi: i64) -> Result<(), crate::Erro
     Ok(())
 }
 
-/// Refuse a window that does not fit in what `--mem` leaves.
 /// The mesh and its grid when the input is a mesh: the depths the growths follow.
 fn mesh<'a>(env: &Env<'a>) -> Option<(&'a TriMesh, &'a GridSpec)> {
     match env.shape {
@@ -279,6 +278,7 @@ fn mesh<'a>(env: &Env<'a>) -> Option<(&'a TriMesh, &'a GridSpec)> {
     }
 }
 
+/// Refuse a window that does not fit in what `--mem` leaves.
 fn check_room(env: &Env, voxels: u64) -> Result<(), crate::Error> {
     let need = voxels * windows::BYTES_PER_WINDOW_VOXEL;
     if need > env.room {
@@ -320,8 +320,8 @@ pub(super) fn run_repair(
     let chi_tidy = chi;
     let mut windowed = Tally::default();
     let mut history = Vec::new();
-    // A large grid, or a grid of balls (a molecule's) too large to repair whole: the compact cut,
-    // without closings. A solvent-excluded solid's tunnels are wider than the closings
+    // A large grid, or a grid of balls (a molecule's) too large to repair whole: the
+    // compact cut, without closings. A solvent-excluded solid's tunnels are wider than the closings
     // (adk_open at 0.25 A: closings by 12, 24 and 48 voxels found none of its 5
     // handles, and took three quarters of the stage), and the cut is small beside a
     // fill that would plug them.
