@@ -103,6 +103,42 @@ fn outputs(root: &Path) -> Vec<(String, Vec<u8>)> {
         let b = column(root, &n);
         out.push((format!("seeds/{n}"), b));
     }
+    out.extend(reports(root));
+    out
+}
+
+/// The counts the trace and map stages record: the trace's stop reasons, collisions
+/// and sphere map, and the whole map report (the map's folded, traced and mapped
+/// voxels; each rank counts its own blocks, the record must hold every rank's). Left
+/// out: times, and the upwind transport's rounds and block visits (a schedule, which
+/// differs on ranks).
+fn reports(root: &Path) -> Vec<(String, Vec<u8>)> {
+    let meta = std::fs::read_to_string(root.join("zarr.json")).expect("run metadata");
+    let v: serde_json::Value = serde_json::from_str(&meta).expect("json");
+    let stages = &v["attributes"]["harmap"]["stages"];
+    let mut map = stages["map"]["result"].clone();
+    let m = map.as_object_mut().expect("map report");
+    m.remove("seconds_directions");
+    if let Some(u) = m.get_mut("upwind").and_then(|u| u.as_object_mut()) {
+        u.remove("rounds");
+        u.remove("visits");
+    }
+    assert!(m["folded"]["measured"].as_u64().unwrap_or(0) > 0, "{map}");
+    let trace = &stages["trace"]["result"];
+    let mut out = vec![("map report".to_owned(), map.to_string().into_bytes())];
+    for key in [
+        "seeds",
+        "stops",
+        "collisions",
+        "indistinguishable",
+        "surface",
+    ] {
+        assert!(!trace[key].is_null(), "trace report without {key}: {trace}");
+        out.push((
+            format!("trace report: {key}"),
+            trace[key].to_string().into_bytes(),
+        ));
+    }
     out
 }
 

@@ -169,6 +169,27 @@ pub trait Decomposition: Send + Sync + std::fmt::Debug {
         Ok(vec![mine])
     }
 
+    /// Every process's `mine` added entry by entry, on every process: counts each
+    /// process made over its own blocks, as totals. (Integers: the order of the
+    /// additions does not change the bytes.) Every process passes as many entries.
+    fn sum_u64(&self, mine: &[u64]) -> Result<Vec<u64>, GridError> {
+        let all = self.all_gather_bytes(mine.iter().flat_map(|v| v.to_le_bytes()).collect())?;
+        let mut total = vec![0u64; mine.len()];
+        for (part, bytes) in all.iter().enumerate() {
+            if bytes.len() != 8 * mine.len() {
+                return Err(GridError::Ranks(format!(
+                    "part {part} sent {} bytes of counts where {} were expected",
+                    bytes.len(),
+                    8 * mine.len()
+                )));
+            }
+            for (t, c) in total.iter_mut().zip(bytes.chunks_exact(8)) {
+                *t += u64::from_le_bytes(c.try_into().expect("8 bytes"));
+            }
+        }
+        Ok(total)
+    }
+
     /// Bytes this process has sent to others so far (halos, gathers).
     fn bytes_sent(&self) -> u64 {
         0

@@ -14,7 +14,7 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use super::upwind::is_target;
-use crate::grid::{BlockStore, GridError, GridSpec, MemBudget};
+use crate::grid::{BlockStore, Decomposition, GridError, GridSpec, MemBudget};
 use crate::math::{volume, Idx3};
 use crate::parallel::map_bounded;
 use crate::progress::Progress;
@@ -54,7 +54,10 @@ pub(super) type HaloDirections<'a> =
     &'a (dyn Fn(Idx3) -> Result<Vec<Option<DVec3>>, GridError> + Sync);
 
 /// Count the folded voxels of the map (`u` and the directions `dirs` gives) over the
-/// blocks `blocks`, outside `ball`; `dir_bytes` is what `dirs` holds for a block. With
+/// blocks `decomp` owns, outside `ball`, and group them into clusters over every part's
+/// (the counts and the kept positions are gathered, so every part returns the whole
+/// map's figures, the same as one process's); `dir_bytes` is what `dirs` holds for a
+/// block. With
 /// `refine`, `dirs` are fast directions and `refine` maps one to the direction of its
 /// stored angles, which decide wherever the fast ones could give another sign.
 #[allow(clippy::too_many_arguments)]
@@ -65,11 +68,12 @@ pub(super) fn folded(
     refine: Option<fn(DVec3) -> DVec3>,
     dir_bytes: u64,
     ball: &StopBall,
-    blocks: &[Idx3],
+    decomp: &dyn Decomposition,
     mem: MemBudget,
     progress: &dyn Progress,
 ) -> Result<Folded, crate::Error> {
     let spec = u.spec().clone();
+    let blocks = decomp.owned(&spec);
     let halo = spec.chunk.map(|c| c + 2);
     let per_worker = volume(halo) * (8 + 32) + dir_bytes + volume(spec.chunk);
     let workers = mem.workers(
@@ -79,7 +83,7 @@ pub(super) fn folded(
         rayon::current_num_threads(),
     )?;
     progress.start("map (folded voxels)", blocks.len() as u64);
-    let per_block = map_bounded(blocks, workers, |&b| -> Result<_, GridError> {
+    let per_block = map_bounded(&blocks, workers, |&b| -> Result<_, GridError> {
         let r = block(u, labels, dirs, refine, ball, &spec, b)?;
         progress.advance(1);
         Ok(r)
@@ -100,6 +104,29 @@ pub(super) fn folded(
                 f.clusters_partial = true;
             }
         }
+    }
+    if decomp.parts() > 1 {
+        // The parts own slabs in block order: their kept positions one after another
+        // are the first of the whole map's, as one process keeps them.
+        let total = decomp.sum_u64(&[f.measured, f.degenerate, f.voxels])?;
+        [f.measured, f.degenerate, f.voxels] = [total[0], total[1], total[2]];
+        let mine = kept
+            .iter()
+            .flatten()
+            .flat_map(|c| c.to_le_bytes())
+            .collect();
+        kept = decomp
+            .all_gather_bytes(mine)?
+            .iter()
+            .flat_map(|b| {
+                b.chunks_exact(12).map(|p| {
+                    let c = |i: usize| u32::from_le_bytes(p[i..i + 4].try_into().expect("4"));
+                    [c(0), c(4), c(8)]
+                })
+            })
+            .take(cap)
+            .collect();
+        f.clusters_partial = f.voxels > kept.len() as u64;
     }
     f.clusters = clusters(&kept, &spec);
     Ok(f)

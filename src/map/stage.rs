@@ -21,7 +21,7 @@ use crate::solve::driver::copy_blocks;
 use crate::trace::integrate::StopBall;
 use crate::trace::surface::Boundary;
 use glam::DVec3;
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 
 /// Compute the map of `run` and write `RUN/theta/0` and `RUN/psi/0`.
 pub fn map(
@@ -52,21 +52,10 @@ pub fn map_with(
         .into());
     }
     // A map killed half-way must not look done: forget the old record first.
-    run.update_attrs(|a| {
-        if let Some(s) = a.get_mut("stages").and_then(|s| s.as_object_mut()) {
-            s.remove("map");
-        }
-    })?;
+    forget_map(run)?;
     let spec = run.grid()?;
     let labels = run.open_image::<u8>("labels")?;
-    // The stop radius is the map's option here: its problems are the map's.
-    let ball = crate::trace::stage::stop_ball(&attrs, &spec, opts.stop_radius, run.root())
-        .map_err(|e| match e {
-            crate::Error::Trace(crate::trace::TraceError::Options(m)) => {
-                MapError::Options(m).into()
-            }
-            e => e,
-        })?;
+    let ball = stop_ball(run, &attrs, &spec, opts)?;
     let scratch = scratch_of(run, decomp);
     staged.and_scratch(&scratch);
     fresh_dir(&scratch)?;
@@ -75,60 +64,67 @@ pub fn map_with(
         progress.warn(problem);
     }
     let t = Instant::now();
-    let (upwind_stats, stops, hybrid, seconds_directions, (voxels, mapped), folded) = match opts
-        .method
-    {
-        MapMethod::Upwind => {
-            let angles = Angles::<f64>::create(run, &spec)?;
-            let dirs = Directions::create(&scratch, &spec, in_memory(&spec, opts))?;
-            let s = upwind_map(
-                run, opts, &spec, &labels, &dirs, &ball, &boundary, progress, decomp,
-            )?;
-            // Where the upwind map squeezes, a streamline from the voxel.
-            let traced = exact(
-                run,
-                opts,
-                &labels,
-                &angles,
-                &ball,
-                &boundary,
-                progress,
-                decomp,
-                Some(&dirs),
-            )?;
-            let seconds = t.elapsed().as_secs_f64();
-            let counts = angles.finish(run, &labels, None, opts.mem, progress, decomp)?;
-            let folded = match &traced.dirs {
-                Some(kept) => hybrid_folds(run, &spec, decomp, &ball, opts, progress, &dirs, kept)?,
-                None => exact_folds(run, &spec, decomp, &ball, opts, progress)?,
-            };
-            let fraction = traced.voxels as f64 / counts.0.max(1) as f64;
-            let hybrid = Hybrid {
-                squeeze_below: SQUEEZE_BELOW,
-                traced: traced.voxels,
-                traced_fraction: fraction,
-            };
-            (
-                Some(s),
-                Some(traced.stops),
-                Some(hybrid),
-                seconds,
-                counts,
-                folded,
-            )
-        }
-        MapMethod::Exact => {
-            let angles = Angles::<f64>::create(run, &spec)?;
-            let traced = exact(
-                run, opts, &labels, &angles, &ball, &boundary, progress, decomp, None,
-            )?;
-            let seconds = t.elapsed().as_secs_f64();
-            let counts = angles.finish(run, &labels, None, opts.mem, progress, decomp)?;
-            let folded = exact_folds(run, &spec, decomp, &ball, opts, progress)?;
-            (None, Some(traced.stops), None, seconds, counts, folded)
-        }
-    };
+    let (upwind_stats, stops, hybrid, seconds_directions, (voxels, mapped), folded) =
+        match opts.method {
+            MapMethod::Upwind => {
+                let angles = Angles::<f64>::create(run, &spec)?;
+                let dirs = Directions::create(&scratch, &spec, in_memory(&spec, opts))?;
+                let s = upwind_map(
+                    run, opts, &spec, &labels, &dirs, &ball, &boundary, progress, decomp,
+                )?;
+                // Where the upwind map squeezes, a streamline from the voxel.
+                let traced = exact(
+                    run,
+                    opts,
+                    &labels,
+                    &angles,
+                    &ball,
+                    &boundary,
+                    progress,
+                    decomp,
+                    Some(&dirs),
+                )?;
+                let seconds = t.elapsed().as_secs_f64();
+                let counts = angles.finish(run, &labels, None, opts.mem, progress, decomp)?;
+                let folded = upwind_folds(
+                    run,
+                    &spec,
+                    decomp,
+                    &ball,
+                    opts,
+                    progress,
+                    &dirs,
+                    traced.dirs.as_ref(),
+                )?;
+                let fraction = traced.voxels as f64 / counts.0.max(1) as f64;
+                let hybrid = Hybrid {
+                    squeeze_below: SQUEEZE_BELOW,
+                    traced: traced.voxels,
+                    traced_fraction: fraction,
+                };
+                (
+                    Some(s),
+                    Some(traced.stops),
+                    Some(hybrid),
+                    seconds,
+                    counts,
+                    folded,
+                )
+            }
+            MapMethod::Exact => {
+                let angles = Angles::<f64>::create(run, &spec)?;
+                let traced = exact(
+                    run, opts, &labels, &angles, &ball, &boundary, progress, decomp, None,
+                )?;
+                let seconds = t.elapsed().as_secs_f64();
+                let counts = angles.finish(run, &labels, None, opts.mem, progress, decomp)?;
+                let folded = exact_folds(run, &spec, decomp, &ball, opts, progress)?;
+                (None, Some(traced.stops), None, seconds, counts, folded)
+            }
+        };
     let _ = std::fs::remove_dir_all(&scratch);
+    let (upwind_stats, stops, hybrid, (voxels, mapped)) =
+        totals(decomp, upwind_stats, stops, hybrid, (voxels, mapped))?;
     let report = MapReport {
         method: opts.method,
         voxels,
@@ -146,12 +142,171 @@ pub fn map_with(
     Ok(report)
 }
 
+/// The stop ball of the run's map. The stop radius is the map's option here: its
+/// problems are the map's.
+fn stop_ball(
+    run: &RunDir,
+    attrs: &serde_json::Value,
+    spec: &GridSpec,
+    opts: &MapOptions,
+) -> Result<StopBall, crate::Error> {
+    crate::trace::stage::stop_ball(attrs, spec, opts.stop_radius, run.root()).map_err(|e| match e {
+        crate::Error::Trace(crate::trace::TraceError::Options(m)) => MapError::Options(m).into(),
+        e => e,
+    })
+}
+
+/// Remove the run's record of a map.
+fn forget_map(run: &RunDir) -> Result<(), crate::Error> {
+    run.update_attrs(|a| {
+        if let Some(s) = a.get_mut("stages").and_then(|s| s.as_object_mut()) {
+            s.remove("map");
+        }
+    })?;
+    Ok(())
+}
+
 /// The map's scratch folder: `map.scratch` in one process, `map.scratch.K` on MPI rank
 /// K of several (each rank has its own).
 fn scratch_of(run: &RunDir, decomp: &dyn Decomposition) -> std::path::PathBuf {
     match decomp.parts() {
         1 => run.root().join("map.scratch"),
         _ => run.root().join(format!("map.scratch.{}", decomp.part())),
+    }
+}
+
+/// The report's counts over every part: each part counted its own blocks (in one
+/// process, the counts unchanged). The rounds of the transport are the same on every
+/// part (they agree when to stop) and stay.
+fn totals(
+    decomp: &dyn Decomposition,
+    mut upwind: Option<TransportStats>,
+    mut stops: Option<BTreeMap<&'static str, u64>>,
+    mut hybrid: Option<Hybrid>,
+    (voxels, mapped): (u64, u64),
+) -> Result<Totals, GridError> {
+    if decomp.parts() == 1 {
+        return Ok((upwind, stops, hybrid, (voxels, mapped)));
+    }
+    let mut mine = vec![voxels, mapped];
+    if let Some(s) = &upwind {
+        mine.extend([s.from_ball, s.upwind, s.filled, s.unreached, s.visits]);
+    }
+    if let Some(h) = &hybrid {
+        mine.push(h.traced);
+    }
+    if let Some(s) = &stops {
+        mine.extend(s.values());
+    }
+    let total = decomp.sum_u64(&mine)?;
+    let mut t = total.into_iter();
+    let mut next = || t.next().expect("one total per count");
+    let (voxels, mapped) = (next(), next());
+    if let Some(s) = &mut upwind {
+        s.from_ball = next();
+        s.upwind = next();
+        s.filled = next();
+        s.unreached = next();
+        s.visits = next();
+    }
+    if let Some(h) = &mut hybrid {
+        h.traced = next();
+        h.traced_fraction = h.traced as f64 / voxels.max(1) as f64;
+    }
+    if let Some(s) = &mut stops {
+        for v in s.values_mut() {
+            *v = next();
+        }
+    }
+    Ok((upwind, stops, hybrid, (voxels, mapped)))
+}
+
+/// What [`totals`] adds up: the transport's counters, the stop reasons, the traced
+/// voxels, and (target voxels, voxels with a direction).
+type Totals = (
+    Option<TransportStats>,
+    Option<BTreeMap<&'static str, u64>>,
+    Option<Hybrid>,
+    (u64, u64),
+);
+
+/// `kept` (this part's traced directions by linear voxel index) with the other parts'
+/// traced directions of the voxels next to this part's slab, which the folded voxels'
+/// one-voxel halos read. One process: `kept` itself.
+fn with_neighbours_traced<'a>(
+    spec: &GridSpec,
+    decomp: &dyn Decomposition,
+    kept: &'a HashMap<u64, DVec3>,
+) -> Result<std::borrow::Cow<'a, HashMap<u64, DVec3>>, GridError> {
+    if decomp.parts() == 1 {
+        return Ok(std::borrow::Cow::Borrowed(kept));
+    }
+    let plane = spec.shape[1] * spec.shape[2];
+    let layers = decomp.z_layers(decomp.part(), spec.blocks());
+    // This part's voxel planes [lo, hi) along z (empty when it owns no layer).
+    let (lo, hi) = if layers.is_empty() {
+        (0, 0)
+    } else {
+        let end = layers.end - 1;
+        (
+            spec.block_start([layers.start, 0, 0])[0],
+            spec.block_start([end, 0, 0])[0] + spec.block_shape([end, 0, 0])[0],
+        )
+    };
+    // Send the directions of this slab's first and last plane.
+    let mut mine = Vec::new();
+    for (&k, d) in kept {
+        let z = k / plane;
+        if hi > lo && (z == lo || z + 1 == hi) {
+            mine.extend(k.to_le_bytes());
+            for c in d.to_array() {
+                mine.extend(c.to_le_bytes());
+            }
+        }
+    }
+    let mut all = kept.clone();
+    for (part, bytes) in decomp.all_gather_bytes(mine)?.iter().enumerate() {
+        if part == decomp.part() || hi == lo {
+            continue;
+        }
+        for e in bytes.chunks_exact(32) {
+            let w = |i: usize| e[8 * i..8 * i + 8].try_into().expect("8 bytes");
+            let k = u64::from_le_bytes(w(0));
+            let z = k / plane;
+            if z + 1 == lo || z == hi {
+                let d = DVec3::new(
+                    f64::from_le_bytes(w(1)),
+                    f64::from_le_bytes(w(2)),
+                    f64::from_le_bytes(w(3)),
+                );
+                all.insert(k, d);
+            }
+        }
+    }
+    Ok(std::borrow::Cow::Owned(all))
+}
+
+/// The default map's folded voxels: from the traced directions `kept` and the upwind
+/// field ([`hybrid_folds`]), unless a part could not keep its traced directions (then
+/// from the stored angles, [`exact_folds`]). Every part takes the same path.
+#[allow(clippy::too_many_arguments)]
+fn upwind_folds(
+    run: &RunDir,
+    spec: &GridSpec,
+    decomp: &dyn Decomposition,
+    ball: &StopBall,
+    opts: &MapOptions,
+    progress: &dyn Progress,
+    dirs: &Directions,
+    kept: Option<&HashMap<u64, DVec3>>,
+) -> Result<Option<Folded>, crate::Error> {
+    let kept_everywhere = decomp.sum_u64(&[u64::from(kept.is_none())])?.first() == Some(&0);
+    match kept {
+        Some(kept) if kept_everywhere => {
+            let kept = with_neighbours_traced(spec, decomp, kept)?;
+            hybrid_folds(run, spec, decomp, ball, opts, progress, dirs, &kept)
+        }
+        _ => exact_folds(run, spec, decomp, ball, opts, progress),
     }
 }
 
@@ -222,8 +377,10 @@ fn exact_folds(
     folds_with(run, spec, decomp, ball, opts, progress, 16, None, &halo)
 }
 
-/// The folded voxels ([`folded`]), when this process holds every block (their halos
-/// read the neighbours' directions, which other parts compute at their own pace).
+/// The folded voxels ([`folded`]) of the whole map, counted over the blocks `decomp`
+/// owns and gathered (a block's halo reads its neighbours' directions: the upwind
+/// field's halos crossed between parts after its last round, the stored angles were
+/// committed by every part).
 #[allow(clippy::too_many_arguments)]
 fn folds_with(
     run: &RunDir,
@@ -236,10 +393,6 @@ fn folds_with(
     refine: Option<fn(DVec3) -> DVec3>,
     dirs: HaloDirections<'_>,
 ) -> Result<Option<Folded>, crate::Error> {
-    let owned = decomp.owned(spec);
-    if owned.len() as u64 != spec.num_blocks() {
-        return Ok(None);
-    }
     let u = run.open_image::<f64>("u")?;
     let labels = run.open_image::<u8>("labels")?;
     let halo = crate::math::volume(spec.chunk.map(|c| c + 2));
@@ -250,7 +403,7 @@ fn folds_with(
         refine,
         halo * (bytes_per_voxel + 24),
         ball,
-        &owned,
+        decomp,
         opts.mem,
         progress,
     )?))
