@@ -79,7 +79,10 @@ def test_sigint_during_solve_raises_keyboardinterrupt_and_resumes_to_the_same_by
     harmap.voxelize(vol, run, progress=False)
     script = textwrap.dedent(
         f"""
-        import sys, harmap
+        import signal, sys, harmap
+        # A runner that starts its jobs in the background may hand them SIGINT ignored,
+        # and Python then never raises KeyboardInterrupt: take it back.
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         print("solving", flush=True)
         try:
             harmap.solve({str(run)!r}, progress=False, **{SLOW!r})
@@ -118,7 +121,8 @@ def test_sigint_during_trace_raises_keyboardinterrupt_within_a_second(tmp_path):
     # ball took 1.6 s, which a quiet machine finished before the signal at 2 s).
     script = textwrap.dedent(
         f"""
-        import sys, time, harmap
+        import signal, sys, time, harmap
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         print("tracing", flush=True)
         try:
             harmap.trace({str(run)!r}, seeds="boundary", h_max=0.002, max_steps=10**6, progress=False)

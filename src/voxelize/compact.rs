@@ -105,14 +105,20 @@ pub fn cut(
     let tables = need - slices - MIN_CACHE as u64 * BRICK_BYTES;
     // A quarter of what is left for the queue (it holds the growth front), the rest for
     // the bricks.
-    let left = room.saturating_sub(tables);
+    // The first pass's slices on as many threads as what the budget leaves holds
+    // their planes (one plane is in `need`).
+    let plane = (n[1] * n[2]) as u64 * 8;
+    let workers = rayon::current_num_threads()
+        .min(1 + (room.saturating_sub(need) / 2 / plane.max(1)) as usize);
+    let extra = (workers as u64 - 1) * plane;
+    let left = room.saturating_sub(tables + extra);
     let queue_room = left / 4;
     let brick_room = left - queue_room;
     let all_bricks = n.map(|c| c.div_ceil(EDGE) as u64).iter().product::<u64>();
     let in_memory = all_bricks * BRICK_BYTES + slices <= brick_room;
     let mut bricks = Bricks::new(n, (!in_memory).then_some(scratch))?;
-    let count = records(store, &mut bricks)?;
-    let seed = depths(&mut bricks, surface)?;
+    let count = records(store, &mut bricks, workers)?;
+    let seed = depths(&mut bricks, surface, workers)?;
     let Some(seed) = seed else {
         return Err(super::VoxelizeError::Options("no solid voxel to repair".into()).into());
     };
@@ -197,18 +203,67 @@ fn from_u32(x: u32) -> f64 {
     }
 }
 
+/// The work arrays of one slice's distance transform: the slice, and a line's.
+struct SliceWork {
+    plane: Vec<f64>,
+    f: Vec<f64>,
+    d: Vec<f64>,
+    v: Vec<usize>,
+    zs: Vec<f64>,
+}
+
+impl SliceWork {
+    fn new(ny: usize, nx: usize) -> Self {
+        let m = nx.max(ny);
+        Self {
+            plane: vec![0.0; ny * nx],
+            f: vec![0.0; m],
+            d: vec![0.0; m],
+            v: vec![0; m],
+            zs: vec![0.0; m + 1],
+        }
+    }
+
+    /// The squared distance transform (along x, then y) of the slice of labels `lab`
+    /// into `out`: each solid voxel's (rounded to its record) and 0 elsewhere. Returns
+    /// the solid voxels.
+    fn slice(&mut self, lab: &[u8], out: &mut [u32], ny: usize, nx: usize) -> u64 {
+        let Self { plane, f, d, v, zs } = self;
+        for (p, &l) in plane.iter_mut().zip(lab) {
+            *p = if l == 1 { f64::INFINITY } else { 0.0 };
+        }
+        for y in 0..ny {
+            line(plane, y * nx, 1, nx, (f, d, v, zs));
+        }
+        for x in 0..nx {
+            line(plane, x, nx, ny, (f, d, v, zs));
+        }
+        let mut count = 0;
+        for ((r, &p), &l) in out.iter_mut().zip(plane.iter()).zip(lab) {
+            *r = if l == 1 { to_u32(p) } else { 0 };
+            count += u64::from(l == 1);
+        }
+        count
+    }
+}
+
 /// The first pass: each slice's squared distance transform (along x, then y) into the
-/// records of the solid voxels (0 for the others), a layer of bricks at a time; returns
+/// records of the solid voxels (0 for the others), a layer of bricks at a time, the
+/// slices of a layer on `workers` threads (each with its own [`SliceWork`]); returns
 /// the solid voxels. A solid voxel's distance is at least 1, so a record is non-zero
 /// exactly at the solid.
-fn records(store: &dyn BlockStore<u8>, bricks: &mut Bricks) -> Result<u64, crate::Error> {
+fn records(
+    store: &dyn BlockStore<u8>,
+    bricks: &mut Bricks,
+    workers: usize,
+) -> Result<u64, crate::Error> {
+    use rayon::prelude::*;
     let [nz, ny, nx] = bricks.n;
     let nb = bricks.nb;
     let slice = ny * nx;
-    let m = nx.max(ny);
-    let (mut f, mut d) = (vec![0.0; m], vec![0.0; m]);
-    let (mut v, mut zs) = (vec![0usize; m], vec![0.0; m + 1]);
-    let mut plane = vec![0.0f64; slice];
+    let mut work: Vec<SliceWork> = (0..workers.clamp(1, EDGE))
+        .map(|_| SliceWork::new(ny, nx))
+        .collect();
     let mut layer = vec![0u32; EDGE * slice];
     let mut rec = vec![0u32; BRICK];
     let mut count = 0u64;
@@ -216,22 +271,20 @@ fn records(store: &dyn BlockStore<u8>, bricks: &mut Bricks) -> Result<u64, crate
         let z0 = bz * EDGE;
         let h = EDGE.min(nz - z0);
         let labels = store.read_region([z0 as i64, 0, 0], [h, ny, nx], 0)?.data;
-        for lz in 0..h {
-            let lab = &labels[lz * slice..][..slice];
-            for (p, &l) in plane.iter_mut().zip(lab) {
-                *p = if l == 1 { f64::INFINITY } else { 0.0 };
-            }
-            for y in 0..ny {
-                line(&mut plane, y * nx, 1, nx, (&mut f, &mut d, &mut v, &mut zs));
-            }
-            for x in 0..nx {
-                line(&mut plane, x, nx, ny, (&mut f, &mut d, &mut v, &mut zs));
-            }
-            for ((r, &p), &l) in layer[lz * slice..][..slice].iter_mut().zip(&plane).zip(lab) {
-                *r = if l == 1 { to_u32(p) } else { 0 };
-                count += u64::from(l == 1);
-            }
-        }
+        // Each worker takes a run of whole slices.
+        let per = h.div_ceil(work.len());
+        count += layer[..h * slice]
+            .par_chunks_mut(per * slice)
+            .zip(labels.par_chunks(per * slice))
+            .zip(work.par_iter_mut())
+            .with_max_len(1)
+            .map(|((out, lab), w)| {
+                out.chunks_mut(slice)
+                    .zip(lab.chunks(slice))
+                    .map(|(o, l)| w.slice(l, o, ny, nx))
+                    .sum::<u64>()
+            })
+            .sum::<u64>();
         for by in 0..nb[1] {
             for bx in 0..nb[2] {
                 rec.fill(0);
@@ -272,6 +325,44 @@ fn line(
     }
 }
 
+/// The distance transform along z of one column of bricks (`[by, bx]`, its stored
+/// bricks with their layers), in place in their records.
+fn z_pass(column: &mut [(usize, u32, Vec<u32>)], [by, bx]: [usize; 2], [nz, ny, nx]: [usize; 3]) {
+    if column.is_empty() {
+        return;
+    }
+    let (mut f, mut d) = (vec![0.0; nz], vec![0.0; nz]);
+    let (mut v, mut zs) = (vec![0usize; nz], vec![0.0; nz + 1]);
+    let mut col = vec![0.0f64; nz * EDGE * EDGE];
+    for (bz, _, rec) in column.iter() {
+        for (l, &r) in rec.iter().enumerate() {
+            let z = bz * EDGE + (l >> (2 * SHIFT));
+            if z < nz && r != 0 {
+                col[z * EDGE * EDGE + (l & (EDGE * EDGE - 1))] = from_u32(r);
+            }
+        }
+    }
+    for ly in 0..EDGE.min(ny - by * EDGE) {
+        for lx in 0..EDGE.min(nx - bx * EDGE) {
+            line(
+                &mut col,
+                (ly << SHIFT) | lx,
+                EDGE * EDGE,
+                nz,
+                (&mut f, &mut d, &mut v, &mut zs),
+            );
+        }
+    }
+    for (bz, _, rec) in column.iter_mut() {
+        for (l, r) in rec.iter_mut().enumerate() {
+            let z = *bz * EDGE + (l >> (2 * SHIFT));
+            if z < nz && *r != 0 {
+                *r = to_u32(col[z * EDGE * EDGE + (l & (EDGE * EDGE - 1))]);
+            }
+        }
+    }
+}
+
 /// The passes after the first: the distance transform along z, a column of bricks at a
 /// time, and then each solid voxel's depth (the squared distance to the nearest
 /// background voxel, a voxel outside the grid being none, or to the mesh where that is
@@ -280,17 +371,20 @@ fn line(
 fn depths(
     bricks: &mut Bricks,
     surface: Option<(&TriMesh, &GridSpec)>,
+    workers: usize,
 ) -> Result<Option<usize>, crate::Error> {
+    use rayon::prelude::*;
     let [nz, ny, nx] = bricks.n;
     let nb = bricks.nb;
-    let (mut f, mut d) = (vec![0.0; nz], vec![0.0; nz]);
-    let (mut v, mut zs) = (vec![0usize; nz], vec![0.0; nz + 1]);
-    let mut col = vec![0.0f64; nz * EDGE * EDGE];
-    // The column's stored bricks: their layer, where they are stored, their records.
-    let mut column: Vec<(usize, u32, Vec<u32>)> = Vec::new();
-    for by in 0..nb[1] {
-        for bx in 0..nb[2] {
-            column.clear();
+    let columns: Vec<[usize; 2]> = (0..nb[1])
+        .flat_map(|by| (0..nb[2]).map(move |bx| [by, bx]))
+        .collect();
+    // `workers` columns at a time: their bricks read, transformed on the threads,
+    // written back.
+    for group in columns.chunks(workers.max(1)) {
+        let mut work = Vec::with_capacity(group.len());
+        for &[by, bx] in group {
+            let mut column = Vec::new();
             for bz in 0..nb[0] {
                 if let Some(p) = bricks.stored([bz, by, bx]) {
                     let mut rec = vec![0u32; BRICK];
@@ -298,36 +392,13 @@ fn depths(
                     column.push((bz, p, rec));
                 }
             }
-            if column.is_empty() {
-                continue;
-            }
-            col.fill(0.0);
-            for (bz, _, rec) in &column {
-                for (l, &r) in rec.iter().enumerate() {
-                    let z = bz * EDGE + (l >> (2 * SHIFT));
-                    if z < nz && r != 0 {
-                        col[z * EDGE * EDGE + (l & (EDGE * EDGE - 1))] = from_u32(r);
-                    }
-                }
-            }
-            for ly in 0..EDGE.min(ny - by * EDGE) {
-                for lx in 0..EDGE.min(nx - bx * EDGE) {
-                    line(
-                        &mut col,
-                        (ly << SHIFT) | lx,
-                        EDGE * EDGE,
-                        nz,
-                        (&mut f, &mut d, &mut v, &mut zs),
-                    );
-                }
-            }
-            for (bz, p, rec) in &mut column {
-                for (l, r) in rec.iter_mut().enumerate() {
-                    let z = *bz * EDGE + (l >> (2 * SHIFT));
-                    if z < nz && *r != 0 {
-                        *r = to_u32(col[z * EDGE * EDGE + (l & (EDGE * EDGE - 1))]);
-                    }
-                }
+            work.push(([by, bx], column));
+        }
+        work.par_iter_mut()
+            .with_max_len(1)
+            .for_each(|(b, column)| z_pass(column, *b, [nz, ny, nx]));
+        for (_, column) in &work {
+            for (_, p, rec) in column {
                 bricks.write_raw(*p, rec)?;
             }
         }

@@ -77,8 +77,8 @@ impl Tally {
     }
 }
 
-/// Drop every piece but the largest (the first of equals) and fill the background's
-/// cavities; returns the solid's Euler characteristic afterwards.
+/// Drop every piece but the largest (the first of equals), of a solid without cavities;
+/// returns the solid's Euler characteristic afterwards.
 fn tidy(env: &Env, tally: &mut Tally) -> Result<i64, crate::Error> {
     let pieces = components::find(
         env.solid,
@@ -114,22 +114,9 @@ fn tidy(env: &Env, tally: &mut Tally) -> Result<i64, crate::Error> {
             env.w_ccl,
         )?;
     }
-    let bg = background(env)?;
-    if bg.touches_border.iter().any(|&t| !t) {
-        let outside = &bg.touches_border;
-        for (c, &n) in bg.sizes.iter().enumerate() {
-            if !outside[c] {
-                tally.added += n;
-            }
-        }
-        components::rewrite(
-            env.solid,
-            &bg,
-            |v| v != 1,
-            |c, v| if outside[c as usize] { v } else { 1 },
-            env.w_ccl,
-        )?;
-    }
+    // No cavity to fill: the stage filled them before the topology counts, and
+    // dropping whole pieces (here, or --keep-largest's) cannot enclose background: what
+    // a dropped piece leaves joins the background around it, which reaches the faces.
     euler::euler_characteristic(env.solid, env.w_ccl)
 }
 
