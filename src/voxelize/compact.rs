@@ -53,6 +53,10 @@ const DEPTH: u32 = WAITING - 1;
 /// transform (8 bytes), or a layer of distances to the mesh (4 bytes).
 pub const BYTES_PER_SLICE_VOXEL: u64 = (EDGE as u64) * 5 + 8;
 
+/// Bytes a voxel of one column of bricks (`EDGE` by `EDGE` lines along z) takes in the
+/// z pass: its record (4 bytes) and its distance (8 bytes).
+const BYTES_PER_COLUMN_VOXEL: u64 = 12;
+
 /// The least memory the cut of a grid `spec` holds: the depth passes, where each brick
 /// is, and the smallest cache.
 #[must_use]
@@ -62,7 +66,8 @@ pub fn bytes_needed(spec: &GridSpec) -> u64 {
         .map(|c| c.div_ceil(EDGE as u64))
         .iter()
         .product::<u64>();
-    ny * nx * BYTES_PER_SLICE_VOXEL + bricks * 8 + MIN_CACHE as u64 * BRICK_BYTES
+    let column = nz * (EDGE * EDGE) as u64 * BYTES_PER_COLUMN_VOXEL;
+    (ny * nx * BYTES_PER_SLICE_VOXEL).max(column) + bricks * 8 + MIN_CACHE as u64 * BRICK_BYTES
 }
 
 /// What the cut did.
@@ -102,15 +107,18 @@ pub fn cut(
     }
     let need = bytes_needed(&spec);
     let slices = (n[1] * n[2]) as u64 * BYTES_PER_SLICE_VOXEL;
-    let tables = need - slices - MIN_CACHE as u64 * BRICK_BYTES;
+    let column = (n[0] * EDGE * EDGE) as u64 * BYTES_PER_COLUMN_VOXEL;
+    let tables = need - slices.max(column) - MIN_CACHE as u64 * BRICK_BYTES;
     // A quarter of what is left for the queue (it holds the growth front), the rest for
     // the bricks.
-    // The first pass's slices on as many threads as what the budget leaves holds
-    // their planes (one plane is in `need`).
+    // The first pass's slices and the z pass's brick columns on as many threads as
+    // what the budget leaves holds their work arrays (one of each is in `need`): a
+    // slice's plane of f64, a column's records (u32) and its f64 copy.
     let plane = (n[1] * n[2]) as u64 * 8;
-    let workers = rayon::current_num_threads()
-        .min(1 + (room.saturating_sub(need) / 2 / plane.max(1)) as usize);
-    let extra = (workers as u64 - 1) * plane;
+    let per_worker = plane.max(column).max(1);
+    let workers =
+        rayon::current_num_threads().min(1 + (room.saturating_sub(need) / 2 / per_worker) as usize);
+    let extra = (workers as u64 - 1) * per_worker;
     let left = room.saturating_sub(tables + extra);
     let queue_room = left / 4;
     let brick_room = left - queue_room;
@@ -203,24 +211,37 @@ fn from_u32(x: u32) -> f64 {
     }
 }
 
-/// The work arrays of one slice's distance transform: the slice, and a line's.
-struct SliceWork {
-    plane: Vec<f64>,
+/// The work arrays of the one-dimensional distance transform of a line of up to `m`
+/// values.
+struct Lines {
     f: Vec<f64>,
     d: Vec<f64>,
     v: Vec<usize>,
     zs: Vec<f64>,
 }
 
-impl SliceWork {
-    fn new(ny: usize, nx: usize) -> Self {
-        let m = nx.max(ny);
+impl Lines {
+    fn new(m: usize) -> Self {
         Self {
-            plane: vec![0.0; ny * nx],
             f: vec![0.0; m],
             d: vec![0.0; m],
             v: vec![0; m],
             zs: vec![0.0; m + 1],
+        }
+    }
+}
+
+/// The work arrays of one slice's distance transform: the slice, and a line's.
+struct SliceWork {
+    plane: Vec<f64>,
+    lines: Lines,
+}
+
+impl SliceWork {
+    fn new(ny: usize, nx: usize) -> Self {
+        Self {
+            plane: vec![0.0; ny * nx],
+            lines: Lines::new(nx.max(ny)),
         }
     }
 
@@ -228,15 +249,15 @@ impl SliceWork {
     /// into `out`: each solid voxel's (rounded to its record) and 0 elsewhere. Returns
     /// the solid voxels.
     fn slice(&mut self, lab: &[u8], out: &mut [u32], ny: usize, nx: usize) -> u64 {
-        let Self { plane, f, d, v, zs } = self;
+        let Self { plane, lines } = self;
         for (p, &l) in plane.iter_mut().zip(lab) {
             *p = if l == 1 { f64::INFINITY } else { 0.0 };
         }
         for y in 0..ny {
-            line(plane, y * nx, 1, nx, (f, d, v, zs));
+            line(plane, y * nx, 1, nx, lines);
         }
         for x in 0..nx {
-            line(plane, x, nx, ny, (f, d, v, zs));
+            line(plane, x, nx, ny, lines);
         }
         let mut count = 0;
         for ((r, &p), &l) in out.iter_mut().zip(plane.iter()).zip(lab) {
@@ -309,13 +330,7 @@ fn records(
 
 /// One line of `g` (`len` values from `start`, `stride` apart) through the
 /// one-dimensional squared distance transform, with its work arrays.
-fn line(
-    g: &mut [f64],
-    start: usize,
-    stride: usize,
-    len: usize,
-    (f, d, v, zs): (&mut [f64], &mut [f64], &mut [usize], &mut [f64]),
-) {
+fn line(g: &mut [f64], start: usize, stride: usize, len: usize, Lines { f, d, v, zs }: &mut Lines) {
     for (q, fq) in f[..len].iter_mut().enumerate() {
         *fq = g[start + q * stride];
     }
@@ -331,8 +346,7 @@ fn z_pass(column: &mut [(usize, u32, Vec<u32>)], [by, bx]: [usize; 2], [nz, ny, 
     if column.is_empty() {
         return;
     }
-    let (mut f, mut d) = (vec![0.0; nz], vec![0.0; nz]);
-    let (mut v, mut zs) = (vec![0usize; nz], vec![0.0; nz + 1]);
+    let mut lines = Lines::new(nz);
     let mut col = vec![0.0f64; nz * EDGE * EDGE];
     for (bz, _, rec) in column.iter() {
         for (l, &r) in rec.iter().enumerate() {
@@ -344,13 +358,7 @@ fn z_pass(column: &mut [(usize, u32, Vec<u32>)], [by, bx]: [usize; 2], [nz, ny, 
     }
     for ly in 0..EDGE.min(ny - by * EDGE) {
         for lx in 0..EDGE.min(nx - bx * EDGE) {
-            line(
-                &mut col,
-                (ly << SHIFT) | lx,
-                EDGE * EDGE,
-                nz,
-                (&mut f, &mut d, &mut v, &mut zs),
-            );
+            line(&mut col, (ly << SHIFT) | lx, EDGE * EDGE, nz, &mut lines);
         }
     }
     for (bz, _, rec) in column.iter_mut() {
