@@ -243,7 +243,7 @@ fn a_killed_rank_ends_the_job_and_the_resumed_solve_gives_the_same_phi() {
         "--rtol",
         "1e-12",
         "--max-iter",
-        "120",
+        "600",
         "--checkpoint-every",
         "0.2",
     ];

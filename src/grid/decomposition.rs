@@ -22,7 +22,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::OnceLock;
 
 use crate::grid::{BlockStore, GridError, GridSpec, Scalar};
-use crate::math::{volume, Idx3};
+use crate::math::Idx3;
 
 /// A field's blocks as bytes, whatever its element type: what a halo exchange sends
 /// and receives ([`Decomposition::exchange`]).
@@ -35,6 +35,22 @@ pub trait HaloData {
     fn block_bytes(&self, b: Idx3, out: &mut Vec<u8>) -> Result<(), GridError>;
     /// Write block `b` from its bytes.
     fn put_block_bytes(&self, b: Idx3, bytes: &[u8]) -> Result<(), GridError>;
+    /// Append the planes `z` (along z, counted within the block) of block `b`, as
+    /// bytes, to `out`.
+    fn planes_bytes(
+        &self,
+        b: Idx3,
+        z: std::ops::Range<u64>,
+        out: &mut Vec<u8>,
+    ) -> Result<(), GridError>;
+    /// Write the planes `z` of block `b` from their bytes, the rest of the block as it
+    /// was.
+    fn put_planes_bytes(
+        &self,
+        b: Idx3,
+        z: std::ops::Range<u64>,
+        bytes: &[u8],
+    ) -> Result<(), GridError>;
 }
 
 /// A [`BlockStore`] seen as [`HaloData`].
@@ -58,38 +74,68 @@ impl<T: Scalar> HaloData for Field<'_, T> {
         self.0
             .write_block(b, &bytemuck::pod_collect_to_vec::<u8, T>(bytes))
     }
+
+    fn planes_bytes(
+        &self,
+        b: Idx3,
+        z: std::ops::Range<u64>,
+        out: &mut Vec<u8>,
+    ) -> Result<(), GridError> {
+        let sh = self.0.spec().block_shape(b);
+        let plane = (sh[1] * sh[2]) as usize;
+        let data = self.0.read_block(b)?;
+        let values = &data[z.start as usize * plane..z.end as usize * plane];
+        out.extend_from_slice(bytemuck::cast_slice(values));
+        Ok(())
+    }
+
+    fn put_planes_bytes(
+        &self,
+        b: Idx3,
+        z: std::ops::Range<u64>,
+        bytes: &[u8],
+    ) -> Result<(), GridError> {
+        let sh = self.0.spec().block_shape(b);
+        let plane = (sh[1] * sh[2]) as usize;
+        let mut data = self.0.read_block(b)?;
+        let values = &mut data[z.start as usize * plane..z.end as usize * plane];
+        bytemuck::cast_slice_mut::<T, u8>(values).copy_from_slice(bytes);
+        self.0.write_block(b, &data)
+    }
 }
 
-/// The block layers (along z) within `halo` voxels of the layers `own` that `own` does
-/// not hold: what a part owning `own` reads of its neighbours' blocks. None when it
-/// owns none.
+/// The planes of the block layers `from` (another part's) that a part owning the
+/// layers `own` reads within `halo` voxels along z: per block layer, in layer order,
+/// the range of its planes counted within the layer's blocks. Every block of such a
+/// layer is read at those planes.
 #[must_use]
-pub fn halo_layers(spec: &GridSpec, own: &std::ops::Range<u64>, halo: u64) -> Vec<u64> {
+pub fn halo_planes(
+    spec: &GridSpec,
+    own: &std::ops::Range<u64>,
+    from: &std::ops::Range<u64>,
+    halo: u64,
+) -> Vec<(u64, std::ops::Range<u64>)> {
     if own.is_empty() {
         return Vec::new();
     }
     let start = |l: u64| spec.block_start([l, 0, 0])[0];
     let end = |l: u64| start(l) + spec.block_shape([l, 0, 0])[0];
-    let lo = start(own.start).saturating_sub(halo);
-    let hi = end(own.end - 1) + halo;
-    (0..spec.blocks()[0])
-        .filter(|l| !own.contains(l) && end(*l) > lo && start(*l) < hi)
-        .collect()
-}
-
-/// Bytes of the blocks of layers `layers` of `spec`, `elem` bytes a value.
-#[must_use]
-pub fn layer_bytes(spec: &GridSpec, layers: &[u64], elem: usize) -> u64 {
-    let nb = spec.blocks();
-    let mut n = 0;
-    for &l in layers {
-        for y in 0..nb[1] {
-            for x in 0..nb[2] {
-                n += volume(spec.block_shape([l, y, x]));
+    let (z0, z1) = (start(own.start), end(own.end - 1));
+    let wanted = [
+        (z0.saturating_sub(halo), z0),
+        (z1, (z1 + halo).min(spec.shape[0])),
+    ];
+    let mut out = Vec::new();
+    for l in from.clone().filter(|l| !own.contains(l)) {
+        let (s, e) = (start(l), end(l));
+        for &(a, b) in &wanted {
+            let (lo, hi) = (a.max(s), b.min(e));
+            if lo < hi {
+                out.push((l, lo - s..hi - s));
             }
         }
     }
-    n * elem as u64
+    out
 }
 
 static WORLD: OnceLock<Box<dyn Decomposition>> = OnceLock::new();
@@ -331,6 +377,49 @@ mod tests {
                     seen.extend(own);
                 }
                 assert_eq!(seen, all, "{parts} parts of {shape:?}");
+            }
+        }
+    }
+
+    /// The planes a part reads of the others are exactly the grid's planes within the
+    /// halo of its slab and outside it, each from the part that owns it, once.
+    #[test]
+    fn halo_planes_are_the_planes_within_the_halo() {
+        for (shape, chunk) in [
+            ([100, 8, 8], [16, 8, 8]),
+            ([33, 4, 4], [8, 4, 4]),
+            ([7, 2, 2], [2, 2, 2]),
+        ] {
+            let s = spec(shape, chunk);
+            let nb = s.blocks();
+            for parts in 1..=5 {
+                for halo in [1, 3, 6, 20] {
+                    for part in 0..parts {
+                        let d = Slabs { part, parts };
+                        let own = d.z_layers(part, nb);
+                        if own.is_empty() {
+                            continue;
+                        }
+                        let mut got = Vec::new();
+                        for from in (0..parts).filter(|&p| p != part) {
+                            let theirs = d.z_layers(from, nb);
+                            for (l, z) in halo_planes(&s, &own, &theirs, halo) {
+                                assert!(theirs.contains(&l));
+                                let z0 = s.block_start([l, 0, 0])[0];
+                                got.extend(z.map(|p| z0 + p));
+                            }
+                        }
+                        got.sort_unstable();
+                        let (lo, hi) = (own.start * chunk[0], (own.end * chunk[0]).min(shape[0]));
+                        let want: Vec<u64> = (lo.saturating_sub(halo)..lo)
+                            .chain(hi..(hi + halo).min(shape[0]))
+                            .collect();
+                        assert_eq!(
+                            got, want,
+                            "{shape:?} in {parts} parts, part {part}, halo {halo}"
+                        );
+                    }
+                }
             }
         }
     }

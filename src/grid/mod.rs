@@ -31,7 +31,7 @@ mod zarr;
 pub use block::{copy_overlap, to_usize, Block};
 pub use budget::{human, MemBudget, BASE_BYTES};
 pub use decomposition::{
-    halo_layers, layer_bytes, set_world, solo, world, Decomposition, Field, HaloData, Slabs, Whole,
+    halo_planes, set_world, solo, world, Decomposition, Field, HaloData, Slabs, Whole,
 };
 pub use external::{open_external_array, ExternalArray};
 pub use flat::FlatStore;

@@ -2,10 +2,12 @@
 //! exchange and reductions are messages between ranks. The only file that knows the
 //! `mpi` crate.
 //!
-//! - A halo exchange sends, to every other rank, the blocks it owns in the block layers
-//!   that rank reads within the halo ([`halo_layers`]), in block order, with one
+//! - A halo exchange sends, to every other rank, the planes of its blocks that rank
+//!   reads within the halo ([`halo_planes`]: the halo's planes of each block of the
+//!   layers next to the slab, not whole blocks), in block order, with one
 //!   `MPI_Alltoallv` of bytes; each rank writes what it receives into its own store of
-//!   the field. Fields whose other blocks are never read are not sent.
+//!   the field (those planes of its copies of the blocks). A coarse level of the solve
+//!   goes whole to every rank. Fields whose other blocks are never read are not sent.
 //! - Per-block partial sums are completed with one `MPI_Allgatherv` of the owned
 //!   entries (a slab's blocks are one run in block order), never with a floating-point
 //!   reduction: the caller adds every entry in block order, so the sum is the same bytes
@@ -22,7 +24,7 @@ use mpi::topology::SimpleCommunicator;
 use mpi::traits::{Communicator, CommunicatorCollectives};
 use mpi::Count;
 
-use super::decomposition::{halo_layers, layer_bytes};
+use super::decomposition::halo_planes;
 use super::{Decomposition, GridError, GridSpec, HaloData, Slabs};
 use crate::math::Idx3;
 
@@ -150,53 +152,60 @@ impl Decomposition for MpiSlabs {
         let me = self.part();
         let n = self.parts();
         let elem = data.elem_bytes();
-        let mine = self.z_layers(me, nb);
-        // What each rank reads of the others: its halo layers. A coarse level of the
-        // solve (`name@depth`, depth > 0) is read under the rank's finer blocks too,
-        // whichever rank owns its blocks: every rank gets all of it (a coarse level
-        // is an eighth of the one above, or less).
+        // What rank `to` reads of rank `from`'s blocks: the planes within its halo. A
+        // coarse level of the solve (`name@depth`, depth > 0) is read under the rank's
+        // finer blocks too, whichever rank owns its blocks: every rank gets all of it,
+        // whole blocks (a coarse level is an eighth of the one above, or less).
         let coarse = field
             .rsplit_once('@')
             .and_then(|(_, d)| d.parse::<u32>().ok())
             .is_some_and(|d| d > 0);
-        let wants: Vec<Vec<u64>> = (0..n)
-            .map(|q| {
-                let own = self.z_layers(q, nb);
-                if coarse {
-                    (0..nb[0]).filter(|l| !own.contains(l)).collect()
-                } else {
-                    halo_layers(spec, &own, halo)
-                }
-            })
-            .collect();
+        let pieces = |to: usize, from: usize| -> Vec<(Idx3, std::ops::Range<u64>)> {
+            if to == from {
+                return Vec::new();
+            }
+            let (own, theirs) = (self.z_layers(to, nb), self.z_layers(from, nb));
+            let layers: Vec<(u64, std::ops::Range<u64>)> = if coarse {
+                theirs
+                    .filter(|l| !own.contains(l))
+                    .map(|l| (l, 0..spec.block_shape([l, 0, 0])[0]))
+                    .collect()
+            } else {
+                halo_planes(spec, &own, &theirs, halo)
+            };
+            layers
+                .into_iter()
+                .flat_map(|(l, z)| {
+                    Self::blocks_of(spec, &[l])
+                        .into_iter()
+                        .map(move |b| (b, z.clone()))
+                })
+                .collect()
+        };
+        let whole =
+            |b: Idx3, z: &std::ops::Range<u64>| z.start == 0 && z.end == spec.block_shape(b)[0];
+        let bytes_of = |b: Idx3, z: &std::ops::Range<u64>| {
+            let sh = spec.block_shape(b);
+            ((z.end - z.start) * sh[1] * sh[2]) as usize * elem
+        };
         let mut send = Vec::new();
         let mut send_counts = Vec::with_capacity(n);
-        for (q, want) in wants.iter().enumerate() {
+        for q in 0..n {
             let before = send.len();
-            if q != me {
-                let layers: Vec<u64> = want.iter().copied().filter(|l| mine.contains(l)).collect();
-                for b in Self::blocks_of(spec, &layers) {
+            for (b, z) in pieces(q, me) {
+                if whole(b, &z) {
                     data.block_bytes(b, &mut send)?;
+                } else {
+                    data.planes_bytes(b, z, &mut send)?;
                 }
             }
             send_counts.push(count(send.len() - before)?);
         }
-        let mut recv_layers = Vec::with_capacity(n);
-        let mut recv_counts = Vec::with_capacity(n);
-        for p in 0..n {
-            let theirs = self.z_layers(p, nb);
-            let layers: Vec<u64> = if p == me {
-                Vec::new()
-            } else {
-                wants[me]
-                    .iter()
-                    .copied()
-                    .filter(|l| theirs.contains(l))
-                    .collect()
-            };
-            recv_counts.push(count(layer_bytes(spec, &layers, elem) as usize)?);
-            recv_layers.push(layers);
-        }
+        let recv_pieces: Vec<_> = (0..n).map(|p| pieces(me, p)).collect();
+        let recv_counts: Vec<Count> = recv_pieces
+            .iter()
+            .map(|ps| count(ps.iter().map(|(b, z)| bytes_of(*b, z)).sum()))
+            .collect::<Result<_, _>>()?;
         let total: usize = recv_counts.iter().map(|&c| c as usize).sum();
         let mut recv = vec![0u8; total];
         {
@@ -206,17 +215,17 @@ impl Decomposition for MpiSlabs {
             let mut rp = PartitionMut::new(&mut recv[..], &recv_counts[..], &rd[..]);
             self.comm.all_to_all_varcount_into(&sp, &mut rp);
         }
-        self.sent.fetch_add(
-            send.len() as u64 - u64::from(send_counts[me].unsigned_abs()),
-            Ordering::Relaxed,
-        );
+        self.sent.fetch_add(send.len() as u64, Ordering::Relaxed);
+        drop(send);
         let mut at = 0;
-        for layers in &recv_layers {
-            for b in Self::blocks_of(spec, layers) {
-                let len = crate::math::volume(spec.block_shape(b)) as usize * elem;
+        for (b, z) in recv_pieces.into_iter().flatten() {
+            let len = bytes_of(b, &z);
+            if whole(b, &z) {
                 data.put_block_bytes(b, &recv[at..at + len])?;
-                at += len;
+            } else {
+                data.put_planes_bytes(b, z, &recv[at..at + len])?;
             }
+            at += len;
         }
         Ok(())
     }

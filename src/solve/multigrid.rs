@@ -152,6 +152,13 @@ pub fn pass_halo(cycle: &CycleOptions) -> u64 {
     2 * cycle.pre.max(cycle.post).max(1) as u64 + 2
 }
 
+/// Whether each block of level `f` lies over exactly one block of the coarser level
+/// `c` (one block each, or as many blocks of half the edge).
+fn nests(f: &GridSpec, c: &GridSpec) -> bool {
+    let single = f.num_blocks() == 1 && c.num_blocks() == 1;
+    single || f.blocks() == c.blocks() && (0..3).all(|a| c.chunk[a] * 2 == f.chunk[a])
+}
+
 impl<'d> Hierarchy<'d> {
     /// Build the coarse levels under `fine` (whose mask and generations are given):
     /// their masks from the fine mask, stores from `maker`, in memory where
@@ -164,6 +171,18 @@ impl<'d> Hierarchy<'d> {
         blocks: BlockLoop<'d>,
     ) -> Result<Self, GridError> {
         let specs = coarse_specs(&fine.spec, cycle.coarsest);
+        // On ranks every pass reads other ranks' blocks only within its halo, and the
+        // slabs of the finest level and the next cover the same planes only when their
+        // block layers along z do.
+        if let (false, Some(c)) = (blocks.owns_all(), specs.first()) {
+            let (lf, lc) = (fine.spec.blocks()[0], c.blocks()[0]);
+            if lf != lc || lf > 1 && c.chunk[0] * 2 != fine.spec.chunk[0] {
+                return Err(GridError::Ranks(format!(
+                    "on MPI ranks the solve needs each block layer of the finest level (along z) to lie over one of the next level, and blocks {} voxels high make coarse blocks {} high; voxelize with --chunk 32 or more (even), or solve in one process",
+                    fine.spec.chunk[0], c.chunk[0]
+                )));
+            }
+        }
         let halo = pass_halo(&cycle);
         let mut levels = vec![fine];
         for (k, spec) in specs.into_iter().enumerate() {
@@ -202,9 +221,7 @@ impl<'d> Hierarchy<'d> {
             return Some(&self.levels[k + 1]);
         }
         let (f, c) = (&self.levels[k].spec, &self.levels.get(k + 1)?.spec);
-        let single = f.num_blocks() == 1 && c.num_blocks() == 1;
-        let aligned = f.blocks() == c.blocks() && (0..3).all(|a| c.chunk[a] * 2 == f.chunk[a]);
-        (single || aligned).then(|| &self.levels[k + 1])
+        nests(f, c).then(|| &self.levels[k + 1])
     }
 
     /// Levels `k` and `k + 1` as whole arrays, when both are held so and this process
