@@ -81,11 +81,14 @@ impl<T: Scalar> HaloData for Field<'_, T> {
         z: std::ops::Range<u64>,
         out: &mut Vec<u8>,
     ) -> Result<(), GridError> {
-        let sh = self.0.spec().block_shape(b);
-        let plane = (sh[1] * sh[2]) as usize;
-        let data = self.0.read_block(b)?;
-        let values = &data[z.start as usize * plane..z.end as usize * plane];
-        out.extend_from_slice(bytemuck::cast_slice(values));
+        // Only those planes: a store copies (or reads) the rows of the region alone.
+        let (st, sh) = (self.0.spec().block_start(b), self.0.spec().block_shape(b));
+        let planes = self.0.read_region(
+            [(st[0] + z.start) as i64, st[1] as i64, st[2] as i64],
+            [(z.end - z.start) as usize, sh[1] as usize, sh[2] as usize],
+            bytemuck::Zeroable::zeroed(),
+        )?;
+        out.extend_from_slice(bytemuck::cast_slice(&planes.data));
         Ok(())
     }
 
