@@ -98,19 +98,111 @@ impl<T: Scalar> HaloData for Field<'_, T> {
         z: std::ops::Range<u64>,
         bytes: &[u8],
     ) -> Result<(), GridError> {
-        let sh = self.0.spec().block_shape(b);
-        let plane = (sh[1] * sh[2]) as usize;
-        let mut data = self.0.read_block(b)?;
-        let values = &mut data[z.start as usize * plane..z.end as usize * plane];
-        bytemuck::cast_slice_mut::<T, u8>(values).copy_from_slice(bytes);
-        self.0.write_block(b, &data)
+        self.0
+            .write_planes(b, z, &bytemuck::pod_collect_to_vec::<u8, T>(bytes))
     }
 }
 
+/// Which planes along z of a field each part reads besides its own blocks: what a
+/// halo exchange ([`Decomposition::exchange`]) must make readable there.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Reach {
+    /// `halo` planes either side of the part's slab: a pass over its own blocks that
+    /// reads that far past them.
+    Halo(u64),
+    /// Per part (indexed by part), the ranges of planes it reads, in the grid's plane
+    /// indices; they may overlap each other and the part's own planes. A level of the
+    /// multigrid hierarchy reads so: its slab's halo, and the planes under (or over)
+    /// the part's slabs of the levels next to it, which need not line up with its own.
+    Planes(Vec<Vec<std::ops::Range<u64>>>),
+}
+
+impl Reach {
+    /// The ranges of planes of `spec`'s grid that `part`, owning the block layers
+    /// `own`, reads: sorted, disjoint, within the grid.
+    #[must_use]
+    pub fn wanted(
+        &self,
+        spec: &GridSpec,
+        part: usize,
+        own: &std::ops::Range<u64>,
+    ) -> Vec<std::ops::Range<u64>> {
+        let n = spec.shape[0];
+        let mut w: Vec<std::ops::Range<u64>> = Vec::new();
+        match self {
+            Self::Halo(halo) => {
+                if let Some(r) = layer_planes(spec, own) {
+                    w.push(r.start.saturating_sub(*halo)..(r.end + halo).min(n));
+                }
+            }
+            Self::Planes(parts) => w.extend(
+                parts
+                    .get(part)
+                    .into_iter()
+                    .flatten()
+                    .map(|r| r.start.min(n)..r.end.min(n)),
+            ),
+        }
+        w.retain(|r| !r.is_empty());
+        w.sort_by_key(|r| r.start);
+        let mut merged: Vec<std::ops::Range<u64>> = Vec::with_capacity(w.len());
+        for r in w {
+            match merged.last_mut() {
+                Some(m) if r.start <= m.end => m.end = m.end.max(r.end),
+                _ => merged.push(r),
+            }
+        }
+        merged
+    }
+}
+
+/// The planes along z of the block layers `layers` of `spec`'s grid (`None` when
+/// there are none).
+#[must_use]
+pub fn layer_planes(
+    spec: &GridSpec,
+    layers: &std::ops::Range<u64>,
+) -> Option<std::ops::Range<u64>> {
+    if layers.is_empty() {
+        return None;
+    }
+    let last = [layers.end - 1, 0, 0];
+    Some(
+        spec.block_start([layers.start, 0, 0])[0]
+            ..spec.block_start(last)[0] + spec.block_shape(last)[0],
+    )
+}
+
 /// The planes of the block layers `from` (another part's) that a part owning the
-/// layers `own` reads within `halo` voxels along z: per block layer, in layer order,
-/// the range of its planes counted within the layer's blocks. Every block of such a
-/// layer is read at those planes.
+/// layers `own` reads, when it reads the planes `wanted` (sorted, disjoint; see
+/// [`Reach::wanted`]): per block layer, in layer order, the ranges of its planes
+/// counted within the layer's blocks. Every block of such a layer is read at those
+/// planes. Layers the part owns itself are never listed.
+#[must_use]
+pub fn planes_read(
+    spec: &GridSpec,
+    own: &std::ops::Range<u64>,
+    from: &std::ops::Range<u64>,
+    wanted: &[std::ops::Range<u64>],
+) -> Vec<(u64, std::ops::Range<u64>)> {
+    let mut out = Vec::new();
+    for l in from.clone().filter(|l| !own.contains(l)) {
+        let Some(r) = layer_planes(spec, &(l..l + 1)) else {
+            continue;
+        };
+        for w in wanted {
+            let (lo, hi) = (w.start.max(r.start), w.end.min(r.end));
+            if lo < hi {
+                out.push((l, lo - r.start..hi - r.start));
+            }
+        }
+    }
+    out
+}
+
+/// The planes of the block layers `from` (another part's) that a part owning the
+/// layers `own` reads within `halo` voxels along z ([`planes_read`] of
+/// [`Reach::Halo`]).
 #[must_use]
 pub fn halo_planes(
     spec: &GridSpec,
@@ -118,27 +210,7 @@ pub fn halo_planes(
     from: &std::ops::Range<u64>,
     halo: u64,
 ) -> Vec<(u64, std::ops::Range<u64>)> {
-    if own.is_empty() {
-        return Vec::new();
-    }
-    let start = |l: u64| spec.block_start([l, 0, 0])[0];
-    let end = |l: u64| start(l) + spec.block_shape([l, 0, 0])[0];
-    let (z0, z1) = (start(own.start), end(own.end - 1));
-    let wanted = [
-        (z0.saturating_sub(halo), z0),
-        (z1, (z1 + halo).min(spec.shape[0])),
-    ];
-    let mut out = Vec::new();
-    for l in from.clone().filter(|l| !own.contains(l)) {
-        let (s, e) = (start(l), end(l));
-        for &(a, b) in &wanted {
-            let (lo, hi) = (a.max(s), b.min(e));
-            if lo < hi {
-                out.push((l, lo - s..hi - s));
-            }
-        }
-    }
-    out
+    planes_read(spec, own, from, &Reach::Halo(halo).wanted(spec, 0, own))
 }
 
 static WORLD: OnceLock<Box<dyn Decomposition>> = OnceLock::new();
@@ -203,10 +275,10 @@ pub trait Decomposition: Send + Sync + std::fmt::Debug {
     }
 
     /// Make the blocks that other processes wrote of the field named `field` (held
-    /// here in `data`) readable by this one, at least within `halo` voxels of this
-    /// process's blocks. Called by every process at the same point of a pass. One
+    /// here in `data`) readable by this one, at least at the planes `reach` says this
+    /// process reads. Called by every process at the same point of a pass. One
     /// process: nothing to do.
-    fn exchange(&self, field: &str, data: &dyn HaloData, halo: u64) -> Result<(), GridError>;
+    fn exchange(&self, field: &str, data: &dyn HaloData, reach: &Reach) -> Result<(), GridError>;
 
     /// Wait until every process has come here. One process: nothing to do.
     fn barrier(&self) -> Result<(), GridError> {
@@ -279,7 +351,12 @@ impl Decomposition for Whole {
         spec.block_indices()
     }
 
-    fn exchange(&self, _field: &str, _data: &dyn HaloData, _halo: u64) -> Result<(), GridError> {
+    fn exchange(
+        &self,
+        _field: &str,
+        _data: &dyn HaloData,
+        _reach: &Reach,
+    ) -> Result<(), GridError> {
         Ok(())
     }
 
@@ -323,7 +400,12 @@ impl Decomposition for Slabs {
         (p * blocks[0] / n)..((p + 1) * blocks[0] / n)
     }
 
-    fn exchange(&self, _field: &str, _data: &dyn HaloData, _halo: u64) -> Result<(), GridError> {
+    fn exchange(
+        &self,
+        _field: &str,
+        _data: &dyn HaloData,
+        _reach: &Reach,
+    ) -> Result<(), GridError> {
         Ok(())
     }
 
@@ -382,6 +464,33 @@ mod tests {
                 assert_eq!(seen, all, "{parts} parts of {shape:?}");
             }
         }
+    }
+
+    /// A part's wanted planes are clamped to the grid, sorted and merged; with no
+    /// slab a halo reaches nothing, while explicit planes still do.
+    #[test]
+    fn reach_wanted_merges_and_clamps() {
+        let s = spec([40, 4, 4], [8, 4, 4]);
+        let planes = Reach::Planes(vec![vec![30..50, 2..5, 4..9, 12..12], vec![]]);
+        assert_eq!(planes.wanted(&s, 0, &(0..0)), vec![2..9, 30..40]);
+        assert!(planes.wanted(&s, 1, &(1..2)).is_empty());
+        assert!(planes.wanted(&s, 2, &(1..2)).is_empty());
+        assert_eq!(Reach::Halo(3).wanted(&s, 0, &(1..3)), vec![5..27]);
+        assert_eq!(Reach::Halo(3).wanted(&s, 0, &(4..5)), vec![29..40]);
+        assert!(Reach::Halo(3).wanted(&s, 0, &(2..2)).is_empty());
+        // Planes of layer 1 (8..16) and 3 (24..32) that part 0, owning layer 2, reads.
+        let got = planes_read(&s, &(2..3), &(0..5), &[2..9, 14..26, 30..40]);
+        assert_eq!(
+            got,
+            vec![
+                (0, 2..8),
+                (1, 0..1),
+                (1, 6..8),
+                (3, 0..2),
+                (3, 6..8),
+                (4, 0..8)
+            ]
+        );
     }
 
     /// The planes a part reads of the others are exactly the grid's planes within the

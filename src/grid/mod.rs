@@ -31,7 +31,8 @@ mod zarr;
 pub use block::{copy_overlap, to_usize, Block};
 pub use budget::{human, MemBudget, BASE_BYTES};
 pub use decomposition::{
-    halo_planes, set_world, solo, world, Decomposition, Field, HaloData, Slabs, Whole,
+    halo_planes, layer_planes, planes_read, set_world, solo, world, Decomposition, Field, HaloData,
+    Reach, Slabs, Whole,
 };
 pub use external::{open_external_array, ExternalArray};
 pub use flat::FlatStore;

@@ -3,11 +3,12 @@
 //! `mpi` crate.
 //!
 //! - A halo exchange sends, to every other rank, the planes of its blocks that rank
-//!   reads within the halo ([`halo_planes`]: the halo's planes of each block of the
-//!   layers next to the slab, not whole blocks), in block order, with one
+//!   reads ([`Reach`], [`planes_read`]: the halo's planes of each block of the layers
+//!   next to the slab, not whole blocks; on a coarse level of the solve also the planes
+//!   under or over the rank's slabs of the levels next to it), in block order, with one
 //!   `MPI_Alltoallv` of bytes; each rank writes what it receives into its own store of
-//!   the field (those planes of its copies of the blocks). A coarse level of the solve
-//!   goes whole to every rank. Fields whose other blocks are never read are not sent.
+//!   the field (those planes of its copies of the blocks). Fields whose other blocks
+//!   are never read are not sent.
 //! - Per-block partial sums are completed with one `MPI_Allgatherv` of the owned
 //!   entries (a slab's blocks are one run in block order), never with a floating-point
 //!   reduction: the caller adds every entry in block order, so the sum is the same bytes
@@ -24,8 +25,8 @@ use mpi::topology::SimpleCommunicator;
 use mpi::traits::{Communicator, CommunicatorCollectives};
 use mpi::Count;
 
-use super::decomposition::halo_planes;
-use super::{Decomposition, GridError, GridSpec, HaloData, Slabs};
+use super::decomposition::planes_read;
+use super::{Decomposition, GridError, GridSpec, HaloData, Reach, Slabs};
 use crate::math::Idx3;
 
 /// Started MPI; finalized when dropped (keep it alive until the process ends).
@@ -146,34 +147,22 @@ impl Decomposition for MpiSlabs {
         self.slabs.z_layers(part, blocks)
     }
 
-    fn exchange(&self, field: &str, data: &dyn HaloData, halo: u64) -> Result<(), GridError> {
+    fn exchange(&self, _field: &str, data: &dyn HaloData, reach: &Reach) -> Result<(), GridError> {
         let spec = data.spec();
         let nb = spec.blocks();
         let me = self.part();
         let n = self.parts();
         let elem = data.elem_bytes();
-        // What rank `to` reads of rank `from`'s blocks: the planes within its halo. A
-        // coarse level of the solve (`name@depth`, depth > 0) is read under the rank's
-        // finer blocks too, whichever rank owns its blocks: every rank gets all of it,
-        // whole blocks (a coarse level is an eighth of the one above, or less).
-        let coarse = field
-            .rsplit_once('@')
-            .and_then(|(_, d)| d.parse::<u32>().ok())
-            .is_some_and(|d| d > 0);
+        // What rank `to` reads of rank `from`'s blocks: the planes of `reach` (its
+        // slab's halo, and on a coarse level of the solve the planes under or over its
+        // slabs of the levels next to it), every block of the layers they cross.
         let pieces = |to: usize, from: usize| -> Vec<(Idx3, std::ops::Range<u64>)> {
             if to == from {
                 return Vec::new();
             }
-            let (own, theirs) = (self.z_layers(to, nb), self.z_layers(from, nb));
-            let layers: Vec<(u64, std::ops::Range<u64>)> = if coarse {
-                theirs
-                    .filter(|l| !own.contains(l))
-                    .map(|l| (l, 0..spec.block_shape([l, 0, 0])[0]))
-                    .collect()
-            } else {
-                halo_planes(spec, &own, &theirs, halo)
-            };
-            layers
+            let own = self.z_layers(to, nb);
+            let wanted = reach.wanted(spec, to, &own);
+            planes_read(spec, &own, &self.z_layers(from, nb), &wanted)
                 .into_iter()
                 .flat_map(|(l, z)| {
                     Self::blocks_of(spec, &[l])

@@ -192,6 +192,18 @@ pub trait BlockStore<T: Scalar>: Send + Sync {
         self.write_block(b, &data)
     }
 
+    /// Write the planes `z` (along z, counted within the block) of block `b` from
+    /// `data` (those planes in C order), the rest of the block as it was. The default
+    /// reads and writes the whole block; a store in memory may keep only the planes it
+    /// was given of a block never written whole (a halo received from another process).
+    fn write_planes(&self, b: Idx3, z: std::ops::Range<u64>, data: &[T]) -> Result<(), GridError> {
+        let sh = self.spec().block_shape(b);
+        let plane = (sh[1] * sh[2]) as usize;
+        let mut block = self.read_block(b)?;
+        block[z.start as usize * plane..z.end as usize * plane].copy_from_slice(data);
+        self.write_block(b, &block)
+    }
+
     /// Read the box `[origin, origin + shape)` in grid coordinates. Voxels outside the
     /// grid take `outside`. The default assembles it from whole blocks; backends that can
     /// read sub-blocks cheaply override it.

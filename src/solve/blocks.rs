@@ -8,7 +8,7 @@
 //! same values, summed in the same order.
 
 use super::level::PassStats;
-use crate::grid::{BlockStore, Decomposition, Field, GridError, GridSpec, Scalar, Whole};
+use crate::grid::{BlockStore, Decomposition, Field, GridError, GridSpec, Reach, Scalar, Whole};
 use crate::math::Idx3;
 use crate::parallel::map_bounded;
 
@@ -111,14 +111,14 @@ impl BlockLoop<'_> {
     }
 
     /// Make the blocks of `field` that other processes wrote readable here within
-    /// `halo` voxels of the owned blocks ([`Decomposition::exchange`]).
+    /// the planes `reach` gives this process ([`Decomposition::exchange`]).
     pub fn exchange<T: Scalar>(
         &self,
         field: &str,
         data: &dyn BlockStore<T>,
-        halo: u64,
+        reach: &Reach,
     ) -> Result<(), GridError> {
-        self.decomp.exchange(field, &Field(data), halo)
+        self.decomp.exchange(field, &Field(data), reach)
     }
 }
 
@@ -170,6 +170,7 @@ mod tests {
             flat: Cache::default(),
             depth: 0,
             halo: 6,
+            reach: Reach::Halo(6),
         }
     }
 

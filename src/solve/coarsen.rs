@@ -5,7 +5,7 @@
 use super::blocks::BlockLoop;
 use super::cuts::is_unknown;
 use super::level::Level;
-use crate::grid::{BlockStore, GridError, GridSpec};
+use crate::grid::{BlockStore, GridError, GridSpec, Reach};
 use crate::math::Idx3;
 use crate::voxelize::labels::INTERIOR;
 
@@ -45,7 +45,7 @@ pub fn coarsen_mask(
     spec: &GridSpec,
     mask: &dyn BlockStore<u8>,
     field: &str,
-    halo: u64,
+    reach: &Reach,
     blocks: &BlockLoop<'_>,
 ) -> Result<(), GridError> {
     blocks.each(spec, |cb| {
@@ -70,5 +70,5 @@ pub fn coarsen_mask(
         }
         mask.write_block(cb, &m)
     })?;
-    blocks.exchange(field, mask, halo)
+    blocks.exchange(field, mask, reach)
 }

@@ -113,7 +113,7 @@ fn hold_above(h: &Hierarchy<'_>, t: f64) -> Result<u64, GridError> {
     })?;
     let left = h.blocks.gather(spec, counts)?.iter().sum::<f64>() as u64;
     h.blocks
-        .exchange(&fine.field("mask"), &*fine.mask, fine.halo)?;
+        .exchange(&fine.field("mask"), &*fine.mask, &fine.reach)?;
     Ok(left)
 }
 
@@ -146,7 +146,7 @@ fn release(h: &Hierarchy<'_>) -> Result<(), GridError> {
         Ok(())
     })?;
     h.blocks
-        .exchange(&fine.field("mask"), &*fine.mask, fine.halo)
+        .exchange(&fine.field("mask"), &*fine.mask, &fine.reach)
 }
 
 /// The finest level's mask changed: make the coarse masks again, and let every level
@@ -160,7 +160,7 @@ fn remask(h: &mut Hierarchy<'_>) -> Result<(), GridError> {
             &lvl.spec,
             &*lvl.mask,
             &lvl.field("mask"),
-            lvl.halo,
+            &lvl.reach,
             &h.blocks,
         )?;
     }

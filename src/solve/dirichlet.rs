@@ -53,7 +53,7 @@ pub fn initialize(l: &Level, eps: f64, blocks: &BlockLoop<'_>) -> Result<(), Gri
         let m = l.mask.read_block(b)?;
         l.u[0].write_block(b, &m.iter().map(|&v| initial_u(v, eps)).collect::<Vec<_>>())
     })?;
-    blocks.exchange(&l.field("u0"), &*l.u[0], l.halo)
+    blocks.exchange(&l.field("u0"), &*l.u[0], &l.reach)
 }
 
 #[cfg(test)]

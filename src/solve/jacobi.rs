@@ -6,7 +6,7 @@ use super::blocks::BlockLoop;
 use super::boxops::BoxView;
 use super::cuts::is_unknown;
 use super::level::{Level, PassStats};
-use crate::grid::GridError;
+use crate::grid::{GridError, Reach};
 
 /// One Jacobi iteration from `u[src]` into `u[dst]`, measuring the residual of the
 /// source and the largest change (which is the largest |residual|).
@@ -58,6 +58,6 @@ pub fn jacobi_pass(
         l.u[dst].write_block(b, &new)?;
         Ok(st)
     })?;
-    blocks.exchange(&l.field(&format!("u{dst}")), &*l.u[dst], 1)?;
+    blocks.exchange(&l.field(&format!("u{dst}")), &*l.u[dst], &Reach::Halo(1))?;
     Ok(st)
 }

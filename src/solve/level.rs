@@ -9,7 +9,7 @@
 
 use super::boxops::BoxView;
 use super::flat::{Cache, Flat};
-use crate::grid::{Block, BlockStore, GridError, GridSpec};
+use crate::grid::{Block, BlockStore, GridError, GridSpec, Reach};
 use crate::math::{volume, Idx3};
 
 /// One level: the mask (labels on the finest level), two generations of u, the
@@ -31,9 +31,12 @@ pub struct Level {
     /// 0 for the finest level, one more per coarsening (names the level's fields in
     /// halo exchanges).
     pub depth: usize,
-    /// The widest halo any pass reads this level's fields with: what a halo exchange
-    /// must make readable around this process's blocks.
+    /// The widest halo any pass reads this level's fields with.
     pub halo: u64,
+    /// What a halo exchange of the level's fields must make readable on each process:
+    /// the `halo` around its blocks, and on a coarse level the planes under (over) its
+    /// blocks of the levels next to it ([`super::multigrid::level_reach`]).
+    pub reach: Reach,
 }
 
 impl Level {

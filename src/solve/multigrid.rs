@@ -50,7 +50,9 @@ use super::flat::Flat;
 use super::level::{Change, Level, Measure, PassStats};
 use super::smooth::Smooth;
 use super::stencil::optimal_omega;
-use crate::grid::{scratch, BlockStore, GridError, GridSpec, Residence, Scalar};
+use crate::grid::{
+    layer_planes, scratch, BlockStore, Decomposition, GridError, GridSpec, Reach, Residence, Scalar,
+};
 
 /// How multigrid starts (`--cycle`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -120,7 +122,7 @@ impl Scratch {
     ) -> Result<Box<dyn BlockStore<T>>, GridError> {
         let file = self.dir.join(format!("{name}.bin"));
         // On MPI ranks a level in memory is held block by block: a rank holds only its
-        // slab and the halo blocks it received, never the whole array.
+        // slab and the planes of other blocks it received, never the whole array.
         let at = if in_memory && crate::grid::world().parts() > 1 {
             Residence::Blocks
         } else if in_memory {
@@ -150,6 +152,40 @@ pub struct Hierarchy<'d> {
 #[must_use]
 pub fn pass_halo(cycle: &CycleOptions) -> u64 {
     2 * cycle.pre.max(cycle.post).max(1) as u64 + 2
+}
+
+/// What a halo exchange of coarse level `k`'s fields (`levels[k]`, 0 the finest) must
+/// make readable on each part of `decomp`: the planes within `halo` of the part's slab
+/// of the level (its own passes), the planes under its slab of level `k - 1` (the
+/// prolongation into that slab's blocks, and their halo), and the planes over its slab
+/// of level `k + 1` (the restriction and injection into those blocks). The slabs of
+/// levels that do not nest need not line up, so a part may read well past its own
+/// slab, or own no block of the level and still read some.
+#[must_use]
+pub fn level_reach(levels: &[GridSpec], k: usize, halo: u64, decomp: &dyn Decomposition) -> Reach {
+    let slab = |s: &GridSpec, p: usize| layer_planes(s, &decomp.z_layers(p, s.blocks()));
+    Reach::Planes(
+        (0..decomp.parts())
+            .map(|p| {
+                let mut w = Vec::new();
+                if let Some(r) = slab(&levels[k], p) {
+                    w.push(r.start.saturating_sub(halo)..r.end + halo);
+                }
+                // Fine plane z lies over coarse z / 2; the prolongation reads a coarse
+                // plane either side.
+                if let Some(r) = k.checked_sub(1).and_then(|f| slab(&levels[f], p)) {
+                    w.push(
+                        (r.start.saturating_sub(halo) / 2).saturating_sub(2)
+                            ..(r.end + halo).div_ceil(2) + 3,
+                    );
+                }
+                if let Some(r) = levels.get(k + 1).and_then(|c| slab(c, p)) {
+                    w.push((2 * r.start).saturating_sub(halo + 2)..2 * r.end + halo + 2);
+                }
+                w
+            })
+            .collect(),
+    )
 }
 
 /// Whether each block of level `f` lies over exactly one block of the coarser level
@@ -184,13 +220,28 @@ impl<'d> Hierarchy<'d> {
             }
         }
         let halo = pass_halo(&cycle);
+        let all: Vec<GridSpec> = std::iter::once(fine.spec.clone())
+            .chain(specs.iter().cloned())
+            .collect();
         let mut levels = vec![fine];
         for (k, spec) in specs.into_iter().enumerate() {
             let lvl = k + 1;
             let mem = in_memory(lvl, &spec);
+            let reach = if blocks.owns_all() {
+                Reach::Halo(halo)
+            } else {
+                level_reach(&all, lvl, halo, blocks.decomp)
+            };
             let mask = maker.make::<u8>(&format!("mask{lvl}"), &spec, mem, 0)?;
             let above = levels.last().expect("a finer level");
-            coarsen_mask(above, &spec, &*mask, &format!("mask@{lvl}"), halo, &blocks)?;
+            coarsen_mask(
+                above,
+                &spec,
+                &*mask,
+                &format!("mask@{lvl}"),
+                &reach,
+                &blocks,
+            )?;
             let u = [
                 maker.make::<f64>(&format!("u{lvl}a"), &spec, mem, 0.0)?,
                 maker.make::<f64>(&format!("u{lvl}b"), &spec, mem, 0.0)?,
@@ -205,6 +256,7 @@ impl<'d> Hierarchy<'d> {
                 flat: super::flat::Cache::default(),
                 depth: lvl,
                 halo,
+                reach,
             });
         }
         Ok(Self {
@@ -395,11 +447,11 @@ impl<'d> Hierarchy<'d> {
             rhs.write_block(cb, &vec![0.0; out.len()])
         })?;
         self.blocks
-            .exchange(&coarse.field("u0"), &*coarse.u[0], coarse.halo)?;
+            .exchange(&coarse.field("u0"), &*coarse.u[0], &coarse.reach)?;
         self.blocks
-            .exchange(&coarse.field("u1"), &*coarse.u[1], coarse.halo)?;
+            .exchange(&coarse.field("u1"), &*coarse.u[1], &coarse.reach)?;
         self.blocks
-            .exchange(&coarse.field("f"), &**rhs, coarse.halo)?;
+            .exchange(&coarse.field("f"), &**rhs, &coarse.reach)?;
         coarse.flat.state_replaced();
         Ok(())
     }

@@ -31,7 +31,7 @@
 
 use super::blocks::BlockLoop;
 use super::cuts::{is_unknown, Coef, CUT};
-use crate::grid::{BlockStore, GridError, GridSpec};
+use crate::grid::{BlockStore, GridError, GridSpec, Reach};
 use crate::math::Idx3;
 use crate::progress::Progress;
 
@@ -316,7 +316,7 @@ impl State<'_> {
                     .enumerate()
                     .fold(0u8, |m, (f, &moved)| m | u8::from(moved) << f);
             }
-            blocks.exchange("u", u, 1)?;
+            blocks.exchange("u", u, &Reach::Halo(1))?;
         }
         Ok(pass)
     }

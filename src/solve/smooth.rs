@@ -171,7 +171,7 @@ impl Level {
         blocks.exchange(
             &self.field(&format!("u{}", pass.dst)),
             &*self.u[pass.dst],
-            self.halo,
+            &self.reach,
         )?;
         if let Some(c) = pass.restrict_into {
             c.exchange_rhs(blocks)?;

@@ -25,7 +25,7 @@ use super::options::SolveOptions;
 use super::plan::plan_memory;
 use super::polish::{PolishOptions, PolishReport};
 use super::report::SolveReport;
-use crate::grid::{human, BlockStore, Compression, Decomposition, GridError, GridSpec};
+use crate::grid::{human, BlockStore, Compression, Decomposition, GridError, GridSpec, Reach};
 use crate::progress::Progress;
 use crate::run::RunDir;
 use crate::voxelize::cuts::NAME as CUTS;
@@ -255,7 +255,7 @@ fn build<'d>(
             let m: Vec<u8> = l.iter().zip(&p).map(|(&l, &p)| fine_mask(l, p)).collect();
             mask.write_block(b, &m)
         })?;
-        blocks.exchange("cuts@0", &*arms, halo)?;
+        blocks.exchange("cuts@0", &*arms, &Reach::Halo(halo))?;
         Some(arms)
     } else {
         blocks.each(spec, |b| mask.write_block(b, &labels.read_block(b)?))?;
@@ -273,8 +273,9 @@ fn build<'d>(
         flat: super::flat::Cache::default(),
         depth: 0,
         halo,
+        reach: Reach::Halo(halo),
     };
-    blocks.exchange(&fine.field("mask"), &*fine.mask, halo)?;
+    blocks.exchange(&fine.field("mask"), &*fine.mask, &fine.reach)?;
     let h = Hierarchy::build(
         fine,
         opts.cycle,
@@ -306,7 +307,7 @@ fn start(
         ck.read(&*fine.u[0], &m)?;
         // On MPI ranks each read its own blocks: the halos come from the others.
         h.blocks
-            .exchange(&fine.field("u0"), &*fine.u[0], fine.halo)?;
+            .exchange(&fine.field("u0"), &*fine.u[0], &fine.reach)?;
         let hist = m.history;
         progress.info(&format!("resuming after {} iterations", hist.iterations));
         let at = Some(hist.iterations);

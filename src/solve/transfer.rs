@@ -130,8 +130,8 @@ impl Level {
     /// exchange both.
     pub(super) fn exchange_rhs(&self, blocks: &BlockLoop<'_>) -> Result<(), GridError> {
         if let Some(f) = &self.f {
-            blocks.exchange(&self.field("f"), &**f, self.halo)?;
+            blocks.exchange(&self.field("f"), &**f, &self.reach)?;
         }
-        blocks.exchange(&self.field("u0"), &*self.u[0], self.halo)
+        blocks.exchange(&self.field("u0"), &*self.u[0], &self.reach)
     }
 }

@@ -10,7 +10,7 @@
 
 use super::Directions;
 use super::{Ctx, Rule, TransportStats, Visit, HALO};
-use crate::grid::{Decomposition, Field, GridError, GridSpec};
+use crate::grid::{Decomposition, Field, GridError, GridSpec, Reach};
 use crate::math::{volume, Idx3};
 use crate::parallel::map_bounded;
 use crate::trace::integrate::StopBall;
@@ -139,7 +139,11 @@ impl Book<'_> {
         dirs: &Directions,
     ) -> Result<bool, GridError> {
         for (c, name) in dirs.c.iter().zip(["x", "y", "z"]) {
-            decomp.exchange(&format!("map.directions.{name}"), &Field(&**c), HALO)?;
+            decomp.exchange(
+                &format!("map.directions.{name}"),
+                &Field(&**c),
+                &Reach::Halo(HALO),
+            )?;
         }
         let mut partials: Vec<f64> = self
             .gained
