@@ -20,7 +20,7 @@ use super::dirichlet::initialize;
 use super::driver::{Decision, History, Iteration, Method, StopReason};
 use super::error::SolveError;
 use super::level::Level;
-use super::multigrid::{pass_halo, Hierarchy, Scratch};
+use super::multigrid::{level_reach, pass_halo, Hierarchy, Scratch};
 use super::options::SolveOptions;
 use super::plan::plan_memory;
 use super::polish::{PolishOptions, PolishReport};
@@ -232,7 +232,37 @@ fn build<'d>(
     } else {
         Vec::new()
     };
-    let (in_memory, workers) = plan_memory(spec, &coarse, &opts.cycle, opts.mem, cuts.is_some())?;
+    let halo = pass_halo(&opts.cycle);
+    let levels: Vec<GridSpec> = std::iter::once(spec.clone())
+        .chain(coarse.iter().cloned())
+        .collect();
+    // On ranks each holds its slab of a level and the planes it receives: the budget
+    // is per rank, so it counts the largest such share.
+    let held = |k: usize| {
+        if decomp.parts() == 1 {
+            return 1.0;
+        }
+        let s = &levels[k];
+        let reach = if k == 0 {
+            Reach::Halo(halo)
+        } else {
+            level_reach(&levels, k, halo, decomp)
+        };
+        let planes = (0..decomp.parts())
+            .map(|p| {
+                let own = decomp.z_layers(p, s.blocks());
+                reach
+                    .wanted(s, p, &own)
+                    .iter()
+                    .map(|r| r.end - r.start)
+                    .sum::<u64>()
+            })
+            .max()
+            .unwrap_or(0);
+        planes as f64 / s.shape[0].max(1) as f64
+    };
+    let (in_memory, workers) =
+        plan_memory(spec, &coarse, &opts.cycle, opts.mem, cuts.is_some(), held)?;
     progress.info(&format!(
         "solve: {} levels, in memory {:?}, {workers} blocks in flight, budget {}",
         coarse.len() + 1,
@@ -240,7 +270,6 @@ fn build<'d>(
         human(opts.mem.0)
     ));
     let blocks = BlockLoop { workers, decomp };
-    let halo = pass_halo(&opts.cycle);
 
     // The finest level: a scratch copy of the labels (cheap halo reads), with the
     // unknowns of the sub-voxel boundary marked where there are cuts, their arms, and
