@@ -13,6 +13,19 @@ pub struct MemBudget(pub u64);
 /// is counted separately by the stages.
 pub const BASE_BYTES: u64 = 24 << 20;
 
+/// Give the memory that earlier work freed back to the system, where the allocator
+/// keeps it (free pages in the middle of the heap, which it hands back only from the
+/// top). A stage calls it before it allocates its own state: the peak of a process that
+/// ran another stage before (the voxelization, on MPI rank 0 or in `harmap run`) is
+/// then that stage's own, not the sum of both.
+pub fn release_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only returns free pages of the allocator's heaps.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
+
 impl MemBudget {
     /// Bytes available to grid work once the base overhead is taken off.
     #[must_use]

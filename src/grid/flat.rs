@@ -77,6 +77,27 @@ impl<T: Scalar> BlockStore<T> for FlatStore<T> {
         Ok(())
     }
 
+    fn write_planes(&self, b: Idx3, z: std::ops::Range<u64>, data: &[T]) -> Result<(), GridError> {
+        // Those planes' rows alone: the rest of the block's pages stay untouched (on MPI
+        // ranks, the array of a level is touched only around the rank's slab).
+        let sh = self.spec.block_shape(b).map(|c| c as usize);
+        let (z0, z1) = (z.start as usize, z.end as usize);
+        if z1 > sh[0] || z0 > z1 || data.len() != (z1 - z0) * sh[1] * sh[2] {
+            return Err(GridError::BlockSize {
+                block: b,
+                expected: z1.min(sh[0]).saturating_sub(z0) * sh[1] * sh[2],
+                got: data.len(),
+            });
+        }
+        let (rows, n) = self.rows(b);
+        let mut d = self.write();
+        let rows = &rows[z0 * sh[1]..z1 * sh[1]];
+        for (&o, src) in rows.iter().zip(data.chunks_exact(n)) {
+            d[o..o + n].copy_from_slice(src);
+        }
+        Ok(())
+    }
+
     fn read_region(
         &self,
         origin: [i64; 3],

@@ -29,7 +29,7 @@ mod store;
 mod zarr;
 
 pub use block::{copy_overlap, to_usize, Block};
-pub use budget::{human, MemBudget, BASE_BYTES};
+pub use budget::{human, release_freed_memory, MemBudget, BASE_BYTES};
 pub use decomposition::{
     halo_planes, layer_planes, planes_read, set_world, solo, world, Decomposition, Field, HaloData,
     Reach, Slabs, Whole,

@@ -86,6 +86,25 @@ mod tests {
                 let data: Vec<f64> = (0..n).map(|i| i as f64).collect();
                 s.write_block(b, &data).unwrap();
                 assert_eq!(s.read_block(b).unwrap(), data);
+                // Planes into a block written whole and into one never written.
+                s.write_block([0, 1, 1], &s.read_block([0, 1, 1]).unwrap())
+                    .unwrap();
+                for pb in [[0, 1, 1], [0, 0, 0]] {
+                    let sh = spec.block_shape(pb).map(|c| c as usize);
+                    let mut want = s.read_block(pb).unwrap();
+                    let planes: Vec<f64> = (0..sh[1] * sh[2]).map(|i| -(i as f64)).collect();
+                    want[sh[1] * sh[2]..2 * sh[1] * sh[2]].copy_from_slice(&planes);
+                    s.write_planes(pb, 1..2, &planes).unwrap();
+                    let got = s.read_block(pb).unwrap();
+                    assert!(
+                        got.iter()
+                            .zip(&want)
+                            .all(|(g, w)| g.to_bits() == w.to_bits()),
+                        "{at:?}: planes of block {pb:?}"
+                    );
+                    assert!(s.write_planes(pb, 1..3, &planes).is_err());
+                }
+                s.write_block(b, &data).unwrap();
                 let copy = scratch(&spec, 0.0, Residence::Blocks).unwrap();
                 copy_blocks(&*s, &*copy, 2).unwrap();
                 assert_eq!(copy.read_block(b).unwrap(), data);

@@ -199,8 +199,16 @@ pub trait BlockStore<T: Scalar>: Send + Sync {
     fn write_planes(&self, b: Idx3, z: std::ops::Range<u64>, data: &[T]) -> Result<(), GridError> {
         let sh = self.spec().block_shape(b);
         let plane = (sh[1] * sh[2]) as usize;
+        let (z0, z1) = (z.start as usize, z.end as usize);
+        if z1 > sh[0] as usize || z0 > z1 || data.len() != (z1 - z0) * plane {
+            return Err(GridError::BlockSize {
+                block: b,
+                expected: z1.min(sh[0] as usize).saturating_sub(z0) * plane,
+                got: data.len(),
+            });
+        }
         let mut block = self.read_block(b)?;
-        block[z.start as usize * plane..z.end as usize * plane].copy_from_slice(data);
+        block[z0 * plane..z1 * plane].copy_from_slice(data);
         self.write_block(b, &block)
     }
 

@@ -171,6 +171,7 @@ mod tests {
             depth: 0,
             halo: 6,
             reach: Reach::Halo(6),
+            slab: None,
         }
     }
 

@@ -37,6 +37,23 @@ pub struct Level {
     /// the `halo` around its blocks, and on a coarse level the planes under (over) its
     /// blocks of the levels next to it ([`super::multigrid::level_reach`]).
     pub reach: Reach,
+    /// On MPI ranks, for a level held as one array: the planes this process computes
+    /// and owns (its whole-array passes run on its slab alone). `None` in one process.
+    pub slab: Option<Slab>,
+}
+
+/// The planes of a level's array that one MPI rank works on: `compute`, its slab and
+/// the halo around it (the passes read and write there; what they leave in the halo
+/// is overwritten by the next exchange), and `own`, its slab (the planes of the block
+/// layers `layers`, whose values and sums are its part of the result).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Slab {
+    /// Planes the passes run on.
+    pub compute: std::ops::Range<usize>,
+    /// Planes of the owned block layers.
+    pub own: std::ops::Range<usize>,
+    /// The owned block layers.
+    pub layers: std::ops::Range<u64>,
 }
 
 impl Level {
@@ -66,6 +83,7 @@ impl Level {
                 None => None,
             },
             &self.flat,
+            self.slab.as_ref(),
         )
     }
 }

@@ -47,7 +47,7 @@ use super::blocks::BlockLoop;
 use super::coarsen::{coarse_specs, coarsen_mask};
 use super::cuts::is_unknown;
 use super::flat::Flat;
-use super::level::{Change, Level, Measure, PassStats};
+use super::level::{Change, Level, Measure, PassStats, Slab};
 use super::smooth::Smooth;
 use super::stencil::optimal_omega;
 use crate::grid::{
@@ -120,10 +120,35 @@ impl Scratch {
         in_memory: bool,
         fill: T,
     ) -> Result<Box<dyn BlockStore<T>>, GridError> {
+        self.make_as(name, spec, in_memory, fill, false)
+    }
+
+    /// [`Scratch::make`] for a coarse level: on MPI ranks too a level in memory is one
+    /// array, whose passes run on the rank's slab ([`super::level::Slab`]); only the
+    /// pages of the slab and the planes it receives are ever touched (the array starts
+    /// as untouched zero pages).
+    pub fn make_coarse<T: Scalar>(
+        &self,
+        name: &str,
+        spec: &GridSpec,
+        in_memory: bool,
+        fill: T,
+    ) -> Result<Box<dyn BlockStore<T>>, GridError> {
+        self.make_as(name, spec, in_memory, fill, true)
+    }
+
+    fn make_as<T: Scalar>(
+        &self,
+        name: &str,
+        spec: &GridSpec,
+        in_memory: bool,
+        fill: T,
+        array_on_ranks: bool,
+    ) -> Result<Box<dyn BlockStore<T>>, GridError> {
         let file = self.dir.join(format!("{name}.bin"));
-        // On MPI ranks a level in memory is held block by block: a rank holds only its
-        // slab and the planes of other blocks it received, never the whole array.
-        let at = if in_memory && crate::grid::world().parts() > 1 {
+        // On MPI ranks the finest level in memory is held block by block: a rank holds
+        // only its slab and the planes of other blocks it received.
+        let at = if in_memory && crate::grid::world().parts() > 1 && !array_on_ranks {
             Residence::Blocks
         } else if in_memory {
             Residence::Array
@@ -188,6 +213,23 @@ pub fn level_reach(levels: &[GridSpec], k: usize, halo: u64, decomp: &dyn Decomp
     )
 }
 
+/// The planes this part computes and owns of a level held as one array: the hull of
+/// the planes it reads (`reach`, which holds its slab and the halo around it).
+fn slab_of(spec: &GridSpec, reach: &Reach, decomp: &dyn Decomposition) -> Slab {
+    let layers = decomp.z_layers(decomp.part(), spec.blocks());
+    let own = layer_planes(spec, &layers).map_or(0..0, |r| r.start as usize..r.end as usize);
+    let wanted = reach.wanted(spec, decomp.part(), &layers);
+    let compute = match (wanted.first(), wanted.last()) {
+        (Some(a), Some(b)) => a.start as usize..b.end as usize,
+        _ => own.clone(),
+    };
+    Slab {
+        compute,
+        own,
+        layers,
+    }
+}
+
 /// Whether each block of level `f` lies over exactly one block of the coarser level
 /// `c` (one block each, or as many blocks of half the edge).
 fn nests(f: &GridSpec, c: &GridSpec) -> bool {
@@ -227,12 +269,14 @@ impl<'d> Hierarchy<'d> {
         for (k, spec) in specs.into_iter().enumerate() {
             let lvl = k + 1;
             let mem = in_memory(lvl, &spec);
-            let reach = if blocks.owns_all() {
-                Reach::Halo(halo)
+            let (reach, slab) = if blocks.owns_all() {
+                (Reach::Halo(halo), None)
             } else {
-                level_reach(&all, lvl, halo, blocks.decomp)
+                let reach = level_reach(&all, lvl, halo, blocks.decomp);
+                let slab = mem.then(|| slab_of(&spec, &reach, blocks.decomp));
+                (reach, slab)
             };
-            let mask = maker.make::<u8>(&format!("mask{lvl}"), &spec, mem, 0)?;
+            let mask = maker.make_coarse::<u8>(&format!("mask{lvl}"), &spec, mem, 0)?;
             let above = levels.last().expect("a finer level");
             coarsen_mask(
                 above,
@@ -243,10 +287,10 @@ impl<'d> Hierarchy<'d> {
                 &blocks,
             )?;
             let u = [
-                maker.make::<f64>(&format!("u{lvl}a"), &spec, mem, 0.0)?,
-                maker.make::<f64>(&format!("u{lvl}b"), &spec, mem, 0.0)?,
+                maker.make_coarse::<f64>(&format!("u{lvl}a"), &spec, mem, 0.0)?,
+                maker.make_coarse::<f64>(&format!("u{lvl}b"), &spec, mem, 0.0)?,
             ];
-            let f = Some(maker.make::<f64>(&format!("f{lvl}"), &spec, mem, 0.0)?);
+            let f = Some(maker.make_coarse::<f64>(&format!("f{lvl}"), &spec, mem, 0.0)?);
             levels.push(Level {
                 spec,
                 mask,
@@ -257,6 +301,7 @@ impl<'d> Hierarchy<'d> {
                 depth: lvl,
                 halo,
                 reach,
+                slab,
             });
         }
         Ok(Self {
@@ -276,14 +321,16 @@ impl<'d> Hierarchy<'d> {
         nests(f, c).then(|| &self.levels[k + 1])
     }
 
-    /// Levels `k` and `k + 1` as whole arrays, when both are held so and this process
-    /// owns every block: their passes then run in place on the arrays
-    /// ([`super::flat`]), with the same results.
+    /// Levels `k` and `k + 1` as whole arrays, when both are held so: their passes then
+    /// run in place on the arrays ([`super::flat`]), with the same results. On MPI
+    /// ranks (both levels with a [`Slab`]) they run on the rank's slab, with halo
+    /// exchanges after each pass as the block passes do.
     fn flat(&self, k: usize) -> Option<(Flat<'_>, Flat<'_>)> {
-        if !self.blocks.owns_all() {
+        let c = self.levels.get(k + 1)?;
+        let on_slabs = self.levels[k].slab.is_some() && c.slab.is_some();
+        if !self.blocks.owns_all() && !on_slabs {
             return None;
         }
-        let c = self.levels.get(k + 1)?;
         Some((self.levels[k].as_flat()?, c.as_flat()?))
     }
 
@@ -299,7 +346,20 @@ impl<'d> Hierarchy<'d> {
     /// fused; with `measure`, the residual of generation 0.
     fn pre_pass(&self, k: usize, sweeps: usize, measure: bool) -> Result<PassStats, GridError> {
         if let Some((f, coarse)) = self.flat(k) {
-            let (res_sq, count) = f.pre(sweeps, measure, &coarse);
+            let (res_sq, count) = if f.slab.is_some() {
+                // On a rank: the sweeps, generation 1's halo, then the restriction
+                // (which reads fine planes past the slab where the levels do not nest).
+                assert!(!measure, "on ranks the finest level is held block by block");
+                let st = f.pre_sweeps(sweeps, false);
+                let lvl = &self.levels[k];
+                self.blocks
+                    .exchange(&lvl.field("u1"), &*lvl.u[1], &lvl.reach)?;
+                f.restrict_into(&coarse);
+                self.levels[k + 1].exchange_rhs(&self.blocks)?;
+                st
+            } else {
+                f.pre(sweeps, measure, &coarse)
+            };
             return Ok(PassStats {
                 res_sq,
                 count,
@@ -368,6 +428,11 @@ impl<'d> Hierarchy<'d> {
         };
         if let Some((f, c)) = self.flat(k) {
             let (max_change, (res_sq, count)) = f.post(sweeps, &c, alpha, k == 0, k == 0);
+            if f.slab.is_some() {
+                assert!(k > 0, "on ranks the finest level is held block by block");
+                self.blocks
+                    .exchange(&lvl.field("u0"), &*lvl.u[0], &lvl.reach)?;
+            }
             let st = PassStats {
                 res_sq,
                 count,

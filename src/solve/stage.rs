@@ -219,6 +219,7 @@ fn build<'d>(
     dir: &Path,
     progress: &dyn Progress,
 ) -> Result<Setup<'d>, crate::Error> {
+    crate::grid::release_freed_memory();
     let labels = run.open_image::<u8>("labels")?;
     // Mesh runs carry the arms of the sub-voxel boundary; others solve on the staircase.
     let cuts = if run.root().join(CUTS).join("0").join("zarr.json").exists() {
@@ -303,6 +304,7 @@ fn build<'d>(
         depth: 0,
         halo,
         reach: Reach::Halo(halo),
+        slab: None,
     };
     blocks.exchange(&fine.field("mask"), &*fine.mask, &fine.reach)?;
     let h = Hierarchy::build(

@@ -6,6 +6,7 @@ use rayon::prelude::*;
 use super::prolong::{correction_at, interpolate_xy, PlanePair};
 use super::runs::{dims, slab_planes, Columns};
 use super::Flat;
+use crate::math::Idx3;
 use crate::solve::stencil::energy_term;
 
 impl Flat<'_> {
@@ -17,6 +18,30 @@ impl Flat<'_> {
     #[must_use]
     #[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
     pub fn correction_energy(&self, coarse: &Flat<'_>) -> f64 {
+        Columns::of(self.spec).total(self.spec, &self.energy_planes(coarse))
+    }
+
+    /// [`Flat::correction_energy`] of each block of the block layers `layers` (on an
+    /// MPI rank, the ones it owns), in block order: the entries the ranks' sum adds up.
+    #[must_use]
+    pub fn correction_energy_blocks(
+        &self,
+        coarse: &Flat<'_>,
+        layers: std::ops::Range<u64>,
+    ) -> Vec<(Idx3, f64)> {
+        let sums = self.energy_planes(coarse);
+        let cols = Columns::of(self.spec);
+        self.spec
+            .block_indices()
+            .into_iter()
+            .filter(|b| layers.contains(&b[0]))
+            .map(|b| (b, cols.block_sum(b, &sums)))
+            .collect()
+    }
+
+    /// Per plane, the energy's sum over each block column of the plane.
+    #[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
+    fn energy_planes(&self, coarse: &Flat<'_>) -> Vec<Vec<f64>> {
         let spec = self.spec;
         let [nz, ny, nx] = dims(spec);
         let p = ny * nx;
@@ -85,7 +110,6 @@ impl Flat<'_> {
                 })
             })
             .collect();
-        let sums: Vec<Vec<f64>> = sums.into_iter().flatten().collect();
-        cols.total(spec, &sums)
+        sums.into_iter().flatten().collect()
     }
 }

@@ -33,6 +33,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use crate::grid::{Contiguous, GridSpec};
 use crate::parallel::Pool;
+use crate::solve::level::Slab;
 
 use prolong::PlanePair;
 use runs::{dims, Runs};
@@ -123,6 +124,8 @@ pub struct Flat<'a> {
     pub f: Option<&'a dyn Contiguous<f64>>,
     /// The runs of the unknowns and the passes' buffers.
     pub cache: &'a Cache,
+    /// On MPI ranks, the planes this process computes and owns; `None`: all of them.
+    pub slab: Option<&'a Slab>,
 }
 
 impl<'a> Flat<'a> {
@@ -134,17 +137,35 @@ impl<'a> Flat<'a> {
         u: [&'a dyn Contiguous<f64>; 2],
         f: Option<&'a dyn Contiguous<f64>>,
         cache: &'a Cache,
+        slab: Option<&'a Slab>,
     ) -> Option<Self> {
         cache
             .runs
-            .get_or_init(|| Runs::of(&mask.array(), dims(spec)));
+            .get_or_init(|| Runs::of_planes(&mask.array(), dims(spec), slab.map(|s| &s.compute)));
         Some(Flat {
             spec,
             mask,
             u,
             f,
             cache,
+            slab,
         })
+    }
+
+    /// The planes the passes run on: all of them, or on a rank its slab with the halo.
+    pub(super) fn compute(&self) -> std::ops::Range<usize> {
+        match self.slab {
+            Some(s) => s.compute.clone(),
+            None => 0..dims(self.spec)[0],
+        }
+    }
+
+    /// The planes whose values this process writes as its own: all, or its slab.
+    pub(super) fn own(&self) -> std::ops::Range<usize> {
+        match self.slab {
+            Some(s) => s.own.clone(),
+            None => 0..dims(self.spec)[0],
+        }
     }
 
     pub(super) fn runs(&self) -> &Runs {

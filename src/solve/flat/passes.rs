@@ -16,7 +16,17 @@ impl Flat<'_> {
     /// Pre-smoothing: generation 1 = generation 0 after `n` sweeps; with `measure`, the
     /// residual of generation 0 first; then the restriction of the defect into
     /// `coarse` (its right-hand side, and a zero correction in its generation 0).
+    #[must_use]
     pub fn pre(&self, n: usize, measure: bool, coarse: &Flat<'_>) -> (f64, u64) {
+        let st = self.pre_sweeps(n, measure);
+        self.restrict_into(coarse);
+        st
+    }
+
+    /// The sweeps of [`Flat::pre`] (and its residual), without the restriction: on MPI
+    /// ranks generation 1's halo is exchanged between the two.
+    #[must_use]
+    pub fn pre_sweeps(&self, n: usize, measure: bool) -> (f64, u64) {
         let shape = dims(self.spec);
         let f = self.f.map(|f| f.array());
         let f = f.as_deref().map(Vec::as_slice);
@@ -30,8 +40,25 @@ impl Flat<'_> {
         let mut u1 = self.u[1].array_mut();
         // Generation 1 holds the fixed values once it has been written whole.
         let fixed = self.cache.fixed_in_both.swap(true, Ordering::Relaxed);
-        sweeps(&mut u1, Some((&u0, fixed)), self.runs(), f, shape, n);
-        drop(u0);
+        sweeps(
+            &mut u1,
+            Some((&u0, fixed)),
+            self.runs(),
+            f,
+            shape,
+            n,
+            &self.compute(),
+        );
+        st
+    }
+
+    /// The restriction of [`Flat::pre`]: the defect of generation 1 into `coarse`'s
+    /// right-hand side, and a zero correction in its generation 0 (on its own planes).
+    pub fn restrict_into(&self, coarse: &Flat<'_>) {
+        let shape = dims(self.spec);
+        let f = self.f.map(|f| f.array());
+        let f = f.as_deref().map(Vec::as_slice);
+        let u1 = self.u[1].array();
         let cmask = coarse.mask.array();
         let mut cf = coarse
             .f
@@ -46,12 +73,13 @@ impl Flat<'_> {
             &cmask,
             &mut cf,
             &self.cache.planes,
+            coarse.own(),
         );
-        coarse.u[0]
-            .array_mut()
+        let cp = coarse.spec.shape[1] as usize * coarse.spec.shape[2] as usize;
+        let own = coarse.own();
+        coarse.u[0].array_mut()[own.start * cp..own.end * cp]
             .par_iter_mut()
             .for_each(|v| *v = 0.0);
-        st
     }
 
     /// Correction and post-smoothing: generation 0 = generation 1 plus `alpha` times the
@@ -82,7 +110,7 @@ impl Flat<'_> {
                 &self.cache.prolong,
             );
         }
-        sweeps(&mut u1, None, self.runs(), f, shape, n);
+        sweeps(&mut u1, None, self.runs(), f, shape, n, &self.compute());
         let mut u0 = self.u[0].array_mut();
         // The result becomes generation 0; generation 1 keeps the old state, which the
         // next pre-smoothing overwrites.

@@ -36,7 +36,7 @@ pub(super) fn defect_plane(
 /// (the same weights and order as [`crate::solve::boxops::restrict`]), and 0 off the coarse
 /// unknowns. Parallel over slabs of coarse planes; within a slab, the fine defect
 /// plane `2 zc + 1` of one coarse plane is the plane `2 zc' - 1` of the next, and is
-/// kept rather than computed twice.
+/// kept rather than computed twice. Only the coarse planes `cplanes` are written.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn restrict(
     fine: [usize; 3],
@@ -47,12 +47,15 @@ pub(super) fn restrict(
     cmask: &[u8],
     cf: &mut [f64],
     planes: &Pool<Vec<f64>>,
+    cplanes: std::ops::Range<usize>,
 ) {
     let [_, ny, nx] = fine;
-    let [cnz, cny, cnx] = coarse;
+    let [_, cny, cnx] = coarse;
     let (p, cp) = (ny * nx, cny * cnx);
-    let per = slab_planes(cnz);
-    cf.par_chunks_mut(per * cp)
+    let per = slab_planes(cplanes.len());
+    let first = cplanes.start;
+    cf[cplanes.start * cp..cplanes.end * cp]
+        .par_chunks_mut(per * cp)
         .enumerate()
         .for_each(|(slab, outs)| {
             planes.with(|d| {
@@ -60,7 +63,7 @@ pub(super) fn restrict(
                 // The fine plane held in d's last third.
                 let mut last: Option<i64> = None;
                 for (k, out) in outs.chunks_exact_mut(cp).enumerate() {
-                    let zc = slab * per + k;
+                    let zc = first + slab * per + k;
                     let cm = &cmask[zc * cp..(zc + 1) * cp];
                     if !cm.contains(&INTERIOR) {
                         out.fill(0.0);

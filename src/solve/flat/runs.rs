@@ -16,11 +16,26 @@ impl Runs {
     /// The runs of the unknowns of `mask` (a whole grid of `shape`).
     #[must_use]
     pub fn of(mask: &[u8], shape: [usize; 3]) -> Self {
+        Self::of_planes(mask, shape, None)
+    }
+
+    /// [`Runs::of`] on the planes `planes` alone (all with `None`); the other planes
+    /// have no runs, so the passes leave them alone (and never touch their memory).
+    #[must_use]
+    pub fn of_planes(
+        mask: &[u8],
+        shape: [usize; 3],
+        planes: Option<&std::ops::Range<usize>>,
+    ) -> Self {
         let [_, ny, nx] = shape;
         let planes = mask
             .par_chunks(ny * nx)
-            .map(|m| {
+            .enumerate()
+            .map(|(z, m)| {
                 let mut out = Vec::new();
+                if planes.as_ref().is_some_and(|p| !p.contains(&z)) {
+                    return out;
+                }
                 for y in 0..ny {
                     let row = &m[y * nx..(y + 1) * nx];
                     let mut x = 0;
@@ -102,18 +117,21 @@ impl Columns {
     /// The sum over the blocks, in block order, of each block's plane sums in z order;
     /// `planes[z][column]`.
     pub(super) fn total(&self, spec: &GridSpec, planes: &[Vec<f64>]) -> f64 {
-        let cz = self.chunk[0];
         spec.block_indices()
             .iter()
-            .map(|&[bz, by, bx]| {
-                let (bz, col) = (bz as usize, by as usize * self.nbx + bx as usize);
-                let mut s = 0.0;
-                for plane in &planes[bz * cz..((bz + 1) * cz).min(self.nz)] {
-                    s += plane[col];
-                }
-                s
-            })
+            .map(|&b| self.block_sum(b, planes))
             .sum()
+    }
+
+    /// Block `b`'s sum: its plane sums in z order; `planes[z][column]`.
+    pub(super) fn block_sum(&self, [bz, by, bx]: crate::math::Idx3, planes: &[Vec<f64>]) -> f64 {
+        let cz = self.chunk[0];
+        let (bz, col) = (bz as usize, by as usize * self.nbx + bx as usize);
+        let mut s = 0.0;
+        for plane in &planes[bz * cz..((bz + 1) * cz).min(self.nz)] {
+            s += plane[col];
+        }
+        s
     }
 }
 

@@ -136,7 +136,10 @@ impl Rows<'_> {
 
 /// `n` red-black sweeps (red, then black) of the whole grid, in place; with `src`, of
 /// `src` into `u` (the first half-sweep reads `src` and writes the unknowns of `u`, and
-/// the fixed voxels too unless `u` already holds them).
+/// the fixed voxels too unless `u` already holds them). Only the planes `planes` are
+/// copied from `src` (the runs, too, lie in them).
+#[allow(clippy::too_many_arguments)]
+#[allow(clippy::many_single_char_names)] // the grid's u, f, n as in the formulas
 pub(super) fn sweeps(
     u: &mut [f64],
     src: Option<(&[f64], bool)>,
@@ -144,18 +147,24 @@ pub(super) fn sweeps(
     f: Option<&[f64]>,
     shape: [usize; 3],
     n: usize,
+    planes: &std::ops::Range<usize>,
 ) {
     for k in 0..n {
         match src {
-            Some((src, fixed)) if k == 0 => relax_from(u, src, fixed, runs, f, shape, 0, 1.0),
+            Some((src, fixed)) if k == 0 => {
+                relax_from(u, src, fixed, runs, f, shape, 0, 1.0, planes);
+            }
             _ => half_sweep(u, runs, f, shape, 0, 1.0),
         }
         half_sweep(u, runs, f, shape, 1, 1.0);
     }
     if n == 0 {
         if let Some((src, _)) = src {
-            u.par_chunks_mut(1 << 16)
-                .zip(src.par_chunks(1 << 16))
+            let p = shape[1] * shape[2];
+            let r = planes.start * p..planes.end * p;
+            u[r.clone()]
+                .par_chunks_mut(1 << 16)
+                .zip(src[r].par_chunks(1 << 16))
                 .for_each(|(d, s)| d.copy_from_slice(s));
         }
     }
@@ -166,7 +175,7 @@ pub(super) fn sweeps(
 /// of the other color, which the half-sweep leaves alone, so the values are those an
 /// in-place half-sweep of the copy would read). The fixed voxels are the same in
 /// every state: with `fixed`, `u` holds them already and only the unknowns are
-/// written; otherwise whole planes are copied.
+/// written; otherwise whole planes are copied. Planes outside `planes` are left alone.
 #[allow(clippy::too_many_arguments)]
 #[allow(clippy::many_single_char_names)] // grid axes (z, y, x) and stencil terms named as in the formulas
 pub(super) fn relax_from(
@@ -178,11 +187,15 @@ pub(super) fn relax_from(
     shape: [usize; 3],
     color: usize,
     omega: f64,
+    planes: &std::ops::Range<usize>,
 ) {
     let [nz, ny, nx] = shape;
     let p = ny * nx;
     let w = omega / 6.0;
     u.par_chunks_mut(p).enumerate().for_each(|(z, cur)| {
+        if !planes.contains(&z) {
+            return;
+        }
         if !fixed {
             cur.copy_from_slice(&src[z * p..(z + 1) * p]);
         }
