@@ -44,11 +44,8 @@ impl<T: Scalar> MemStore<T> {
 
     /// The block `b` of `held` (its planes `z`) as a whole block, the fill value in the
     /// planes it does not hold.
-    fn widen(&self, b: Idx3, held: Held<T>) -> Vec<T> {
+    fn widen(&self, b: Idx3, held: &Held<T>) -> Vec<T> {
         let sh = to_usize(self.spec.block_shape(b));
-        if held.z == (0..sh[0]) {
-            return held.data;
-        }
         let plane = sh[1] * sh[2];
         let mut v = vec![self.fill; sh.iter().product()];
         v[held.z.start * plane..held.z.end * plane].copy_from_slice(&held.data);
@@ -67,13 +64,7 @@ impl<T: Scalar> BlockStore<T> for MemStore<T> {
         let sh = to_usize(self.spec.block_shape(b));
         Ok(match &*slot {
             Some(h) if h.z == (0..sh[0]) => h.data.clone(),
-            Some(h) => self.widen(
-                b,
-                Held {
-                    z: h.z.clone(),
-                    data: h.data.clone(),
-                },
-            ),
+            Some(h) => self.widen(b, h),
             None => vec![self.fill; sh.iter().product()],
         })
     }
@@ -108,7 +99,7 @@ impl<T: Scalar> BlockStore<T> for MemStore<T> {
             });
         }
         let mut slot = self.slot(b).write().expect("lock");
-        let held = match slot.take() {
+        let mut held = match slot.take() {
             None => Held {
                 z: z.clone(),
                 data: data.to_vec(),
@@ -122,7 +113,6 @@ impl<T: Scalar> BlockStore<T> for MemStore<T> {
                 Held { z: lo..hi, data: v }
             }
         };
-        let mut held = held;
         let at = (z.start - held.z.start) * plane;
         held.data[at..at + data.len()].copy_from_slice(data);
         *slot = Some(held);
@@ -139,7 +129,8 @@ impl<T: Scalar> BlockStore<T> for MemStore<T> {
         let (lo, shape) = block_in_box(&self.spec, b, src);
         let mut slot = self.slot(b).write().expect("lock");
         let dst = match slot.take() {
-            Some(h) => self.widen(b, h),
+            Some(h) if h.z == (0..shape[0]) => h.data,
+            Some(h) => self.widen(b, &h),
             None => vec![self.fill; shape.iter().product()],
         };
         let dst = &mut slot
@@ -184,16 +175,7 @@ impl<T: Scalar> BlockStore<T> for MemStore<T> {
                     let at = [s[0] + h.z.start as i64, s[1], s[2]];
                     copy_overlap(&h.data, at, [h.z.len(), sh[1], sh[2]], &mut out);
                 }
-                Some(h) => {
-                    let whole = self.widen(
-                        b,
-                        Held {
-                            z: h.z.clone(),
-                            data: h.data.clone(),
-                        },
-                    );
-                    copy_overlap(&whole, s, sh, &mut out);
-                }
+                Some(h) => copy_overlap(&self.widen(b, h), s, sh, &mut out),
                 None if self.fill != outside => {
                     let f = vec![self.fill; volume(spec.block_shape(b)) as usize];
                     copy_overlap(&f, s, to_usize(spec.block_shape(b)), &mut out);

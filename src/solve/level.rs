@@ -86,6 +86,21 @@ impl Level {
             self.slab.as_ref(),
         )
     }
+
+    /// This level and `coarse` as whole arrays, when both are held so and the passes
+    /// may run on them: in one process, or on MPI ranks where both have a [`Slab`].
+    #[must_use]
+    pub fn flat_with<'a>(
+        &'a self,
+        coarse: &'a Level,
+        blocks: &super::blocks::BlockLoop<'_>,
+    ) -> Option<(Flat<'a>, Flat<'a>)> {
+        let on_slabs = self.slab.is_some() && coarse.slab.is_some();
+        if !blocks.owns_all() && !on_slabs {
+            return None;
+        }
+        Some((self.as_flat()?, coarse.as_flat()?))
+    }
 }
 
 /// Bytes a coarse level of `spec` holds (mask, two generations, right-hand side).

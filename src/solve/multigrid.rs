@@ -124,9 +124,9 @@ impl Scratch {
     }
 
     /// [`Scratch::make`] for a coarse level: on MPI ranks too a level in memory is one
-    /// array, whose passes run on the rank's slab ([`super::level::Slab`]); only the
-    /// pages of the slab and the planes it receives are ever touched (the array starts
-    /// as untouched zero pages).
+    /// array, whose passes run on the rank's slab ([`super::level::Slab`]) and touch
+    /// only its planes and those it receives (the rest stays unwritten; whether its
+    /// pages are resident depends on the allocator handing out fresh zero pages).
     pub fn make_coarse<T: Scalar>(
         &self,
         name: &str,
@@ -213,6 +213,37 @@ pub fn level_reach(levels: &[GridSpec], k: usize, halo: u64, decomp: &dyn Decomp
     )
 }
 
+/// The reach of level `k`'s exchanges ([`level_reach`]), or in one process, and for
+/// the finest level (whose blocks nest with the next level's), the pass halo alone.
+#[must_use]
+pub fn reach_of(levels: &[GridSpec], k: usize, halo: u64, decomp: &dyn Decomposition) -> Reach {
+    if k == 0 || decomp.parts() == 1 {
+        Reach::Halo(halo)
+    } else {
+        level_reach(levels, k, halo, decomp)
+    }
+}
+
+/// The share of level `k`'s planes the most loaded part holds (its slab and the planes
+/// it receives), at most 1; 1 in one process.
+#[must_use]
+pub fn held_share(levels: &[GridSpec], k: usize, halo: u64, decomp: &dyn Decomposition) -> f64 {
+    if decomp.parts() == 1 {
+        return 1.0;
+    }
+    let s = &levels[k];
+    let reach = reach_of(levels, k, halo, decomp);
+    let planes = (0..decomp.parts())
+        .map(|p| {
+            let own = decomp.z_layers(p, s.blocks());
+            let wanted = reach.wanted(s, p, &own);
+            wanted.iter().map(|r| r.end - r.start).sum::<u64>()
+        })
+        .max()
+        .unwrap_or(0);
+    planes as f64 / s.shape[0].max(1) as f64
+}
+
 /// The planes this part computes and owns of a level held as one array: the hull of
 /// the planes it reads (`reach`, which holds its slab and the halo around it).
 fn slab_of(spec: &GridSpec, reach: &Reach, decomp: &dyn Decomposition) -> Slab {
@@ -269,13 +300,8 @@ impl<'d> Hierarchy<'d> {
         for (k, spec) in specs.into_iter().enumerate() {
             let lvl = k + 1;
             let mem = in_memory(lvl, &spec);
-            let (reach, slab) = if blocks.owns_all() {
-                (Reach::Halo(halo), None)
-            } else {
-                let reach = level_reach(&all, lvl, halo, blocks.decomp);
-                let slab = mem.then(|| slab_of(&spec, &reach, blocks.decomp));
-                (reach, slab)
-            };
+            let reach = reach_of(&all, lvl, halo, blocks.decomp);
+            let slab = (mem && !blocks.owns_all()).then(|| slab_of(&spec, &reach, blocks.decomp));
             let mask = maker.make_coarse::<u8>(&format!("mask{lvl}"), &spec, mem, 0)?;
             let above = levels.last().expect("a finer level");
             coarsen_mask(
@@ -326,12 +352,7 @@ impl<'d> Hierarchy<'d> {
     /// ranks (both levels with a [`Slab`]) they run on the rank's slab, with halo
     /// exchanges after each pass as the block passes do.
     fn flat(&self, k: usize) -> Option<(Flat<'_>, Flat<'_>)> {
-        let c = self.levels.get(k + 1)?;
-        let on_slabs = self.levels[k].slab.is_some() && c.slab.is_some();
-        if !self.blocks.owns_all() && !on_slabs {
-            return None;
-        }
-        Some((self.levels[k].as_flat()?, c.as_flat()?))
+        self.levels[k].flat_with(self.levels.get(k + 1)?, &self.blocks)
     }
 
     /// The first pass of a V-cycle on the finest level: pre-smoothing from generation 0

@@ -20,7 +20,7 @@ use super::dirichlet::initialize;
 use super::driver::{Decision, History, Iteration, Method, StopReason};
 use super::error::SolveError;
 use super::level::Level;
-use super::multigrid::{level_reach, pass_halo, Hierarchy, Scratch};
+use super::multigrid::{held_share, pass_halo, Hierarchy, Scratch};
 use super::options::SolveOptions;
 use super::plan::plan_memory;
 use super::polish::{PolishOptions, PolishReport};
@@ -239,29 +239,7 @@ fn build<'d>(
         .collect();
     // On ranks each holds its slab of a level and the planes it receives: the budget
     // is per rank, so it counts the largest such share.
-    let held = |k: usize| {
-        if decomp.parts() == 1 {
-            return 1.0;
-        }
-        let s = &levels[k];
-        let reach = if k == 0 {
-            Reach::Halo(halo)
-        } else {
-            level_reach(&levels, k, halo, decomp)
-        };
-        let planes = (0..decomp.parts())
-            .map(|p| {
-                let own = decomp.z_layers(p, s.blocks());
-                reach
-                    .wanted(s, p, &own)
-                    .iter()
-                    .map(|r| r.end - r.start)
-                    .sum::<u64>()
-            })
-            .max()
-            .unwrap_or(0);
-        planes as f64 / s.shape[0].max(1) as f64
-    };
+    let held = |k: usize| held_share(&levels, k, halo, decomp);
     let (in_memory, workers) =
         plan_memory(spec, &coarse, &opts.cycle, opts.mem, cuts.is_some(), held)?;
     progress.info(&format!(

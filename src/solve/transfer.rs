@@ -66,11 +66,7 @@ impl Level {
                 let f = cf.read_block(cb)?;
                 Ok(e.iter().zip(&f).map(|(a, b)| a * b).sum::<f64>())
             })?;
-        let on_slabs = self.slab.is_some() && coarse.slab.is_some();
-        let flat = (blocks.owns_all() || on_slabs)
-            .then(|| Some((self.as_flat()?, coarse.as_flat()?)))
-            .flatten();
-        let den = if let Some((f, c)) = flat {
+        let den = if let Some((f, c)) = self.flat_with(coarse, blocks) {
             match &self.slab {
                 Some(s) => {
                     let parts = f.correction_energy_blocks(&c, s.layers.clone());
