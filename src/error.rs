@@ -41,7 +41,9 @@ impl Error {
             Error::Input(_) | Error::Trace(_) => true,
             Error::Grid(e) => matches!(
                 e,
-                crate::grid::GridError::Budget { .. } | crate::grid::GridError::Corrupt { .. }
+                crate::grid::GridError::Budget { .. }
+                    | crate::grid::GridError::Corrupt { .. }
+                    | crate::grid::GridError::RankLayout(_)
             ),
             Error::Run(e) => e.is_bad_input(),
             Error::Voxelize(e) => e.is_bad_input(),

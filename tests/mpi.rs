@@ -187,6 +187,30 @@ fn crambin_on_one_two_and_three_ranks_is_the_same_bytes_as_one_process() {
     same_bytes_on_ranks(&pdb, &["--spacing", "0.5"], &[1, 2, 3]);
 }
 
+/// Options the ranks cannot run (blocks 9 voxels high do not line up with the next
+/// multigrid level's) are bad usage: exit 2 from mpiexec, with the fix, and no phi.
+#[test]
+fn blocks_the_ranks_cannot_share_are_bad_usage() {
+    let Some(mpiexec) = mpiexec() else {
+        return;
+    };
+    let _one = JOBS
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out = dir.path().join("run");
+    let status = Command::new(&mpiexec)
+        .args(["-n", "2", harmap(), "-q", "--progress", "never", "run"])
+        .args(["--resolution", "40", "--chunk", "9", "-o"])
+        .arg(&out)
+        .output()
+        .expect("start mpiexec");
+    let stderr = String::from_utf8_lossy(&status.stderr);
+    assert_eq!(status.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("--chunk 32 or more"), "{stderr}");
+    assert!(!out.join("phi").exists(), "a phi was left behind");
+}
+
 /// The harmap processes below `pid` (mpiexec's ranks, under its process proxy).
 fn ranks_below(pid: u32) -> Vec<u32> {
     let parent_of = |p: u32| -> Option<u32> {

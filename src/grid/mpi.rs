@@ -87,7 +87,7 @@ unsafe impl Sync for MpiSlabs {}
 
 fn count(n: usize) -> Result<Count, GridError> {
     Count::try_from(n).map_err(|_| {
-        GridError::Ranks(format!(
+        GridError::RankLayout(format!(
             "{n} bytes in one message exceed MPI's count limit (2 GiB); use smaller blocks (--chunk) or more ranks"
         ))
     })

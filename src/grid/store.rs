@@ -106,6 +106,11 @@ pub enum GridError {
     /// message, or the ranks disagree about what they exchange).
     #[error("MPI ranks: {0}")]
     Ranks(String),
+    /// The grid's blocks cannot be shared out over MPI ranks the way asked (blocks too
+    /// large for one message, or block layers that do not line up across multigrid
+    /// levels). Fix: what the message says (other `--chunk`, more ranks or one process).
+    #[error("MPI ranks: {0}")]
+    RankLayout(String),
     /// A chunk does not hold what harmap wrote: its checksum differs, it is cut short,
     /// or it is missing from an array whose every chunk was written. Fix: run the stage
     /// that wrote the array again (the run's files were changed or damaged on disk).

@@ -286,7 +286,7 @@ impl<'d> Hierarchy<'d> {
         if let (false, Some(c)) = (blocks.owns_all(), specs.first()) {
             let (lf, lc) = (fine.spec.blocks()[0], c.blocks()[0]);
             if lf != lc || lf > 1 && c.chunk[0] * 2 != fine.spec.chunk[0] {
-                return Err(GridError::Ranks(format!(
+                return Err(GridError::RankLayout(format!(
                     "on MPI ranks the solve needs each block layer of the finest level (along z) to lie over one of the next level, and blocks {} voxels high make coarse blocks {} high; voxelize with --chunk 32 or more (even), or solve in one process",
                     fine.spec.chunk[0], c.chunk[0]
                 )));
