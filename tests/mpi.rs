@@ -35,6 +35,11 @@ fn harmap() -> &'static str {
 
 /// `harmap -q --progress never ARGS`, on `ranks` MPI ranks (0: one plain process).
 fn run(mpiexec: &Path, ranks: usize, args: &[&str]) -> Output {
+    run_with(mpiexec, ranks, args, &[])
+}
+
+/// [`run`] with environment variables `env`.
+fn run_with(mpiexec: &Path, ranks: usize, args: &[&str], env: &[(&str, &str)]) -> Output {
     let mut c = if ranks == 0 {
         Command::new(harmap())
     } else {
@@ -43,6 +48,7 @@ fn run(mpiexec: &Path, ranks: usize, args: &[&str]) -> Output {
         c
     };
     c.args(["-q", "--progress", "never"]).args(args);
+    c.envs(env.iter().copied());
     let out = c.output().expect("start harmap");
     assert!(
         out.status.success(),
@@ -144,7 +150,8 @@ fn reports(root: &Path) -> Vec<(String, Vec<u8>)> {
 
 /// `harmap run INPUT ARGS` in one process and on each rank count of `ranks`: the same
 /// bytes in every output.
-fn same_bytes_on_ranks(input: &Path, args: &[&str], ranks: &[usize]) {
+/// `env` is set for the runs on ranks.
+fn same_bytes_on_ranks(input: &Path, args: &[&str], ranks: &[usize], env: &[(&str, &str)]) {
     let Some(mpiexec) = mpiexec() else { return };
     // One job at a time: the ranks of two would share the cores.
     let _one = JOBS
@@ -155,7 +162,7 @@ fn same_bytes_on_ranks(input: &Path, args: &[&str], ranks: &[usize]) {
         let out = dir.path().join(format!("r{n}.harmap"));
         let mut a = vec!["run", input.to_str().unwrap(), "-o", out.to_str().unwrap()];
         a.extend_from_slice(args);
-        run(&mpiexec, n, &a);
+        run_with(&mpiexec, n, &a, if n == 0 { &[] } else { env });
         outputs(&out)
     };
     let one = go(0);
@@ -176,7 +183,14 @@ fn spot_on_two_and_three_ranks_is_the_same_bytes_as_one_process() {
     let Some(spot) = shared_data("meshes/spot.obj") else {
         return;
     };
-    same_bytes_on_ranks(&spot, &["--resolution", "96"], &[2, 3]);
+    // Halo exchanges in rounds of 4 KiB between each pair of ranks (2 MiB by default,
+    // more than any halo here), so that the rounds' bookkeeping is tried too.
+    same_bytes_on_ranks(
+        &spot,
+        &["--resolution", "96"],
+        &[2, 3],
+        &[("HARMAP_EXCHANGE_ROUND", "4096")],
+    );
 }
 
 #[test]
@@ -184,7 +198,7 @@ fn crambin_on_one_two_and_three_ranks_is_the_same_bytes_as_one_process() {
     let Some(pdb) = shared_data("molecules/1crn.pdb") else {
         return;
     };
-    same_bytes_on_ranks(&pdb, &["--spacing", "0.5"], &[1, 2, 3]);
+    same_bytes_on_ranks(&pdb, &["--spacing", "0.5"], &[1, 2, 3], &[]);
 }
 
 /// Options the ranks cannot run (blocks 9 voxels high do not line up with the next

@@ -12,7 +12,66 @@ use crate::math::{volume, Idx3};
 /// A grid held in memory as one C-order array.
 pub struct FlatStore<T> {
     spec: GridSpec,
-    data: RwLock<Vec<T>>,
+    data: RwLock<Array<T>>,
+}
+
+/// Arrays of at least this many bytes that start as zeros are pages of their own
+/// ([`Array`]).
+const OWN_PAGES_FROM: usize = 1 << 20;
+
+/// The values of a [`FlatStore`]: a slice of the grid's voxel count. Large arrays that
+/// start as zeros are anonymous pages of their own, which stay unallocated until
+/// written, whatever the allocator held before: a heap chunk handed out again is
+/// cleared whole (calloc), so a process that had freed memory (rank 0 after it
+/// voxelized) made every page of such an array resident, where an MPI rank that
+/// writes only its slab of a coarse multigrid level needs about half of them.
+pub struct Array<T> {
+    inner: Inner<T>,
+}
+
+enum Inner<T> {
+    Heap(Vec<T>),
+    Pages(memmap2::MmapMut, usize),
+}
+
+impl<T: Scalar> Array<T> {
+    /// `n` values `fill`.
+    fn filled(n: usize, fill: T) -> Self {
+        let bytes = n * std::mem::size_of::<T>();
+        let zero = bytemuck::bytes_of(&fill).iter().all(|&b| b == 0);
+        if zero && bytes >= OWN_PAGES_FROM {
+            // Zero pages, page-aligned (so aligned for any Scalar); if the system
+            // refuses the mapping the heap serves instead.
+            if let Ok(m) = memmap2::MmapMut::map_anon(bytes) {
+                return Self {
+                    inner: Inner::Pages(m, n),
+                };
+            }
+        }
+        Self {
+            inner: Inner::Heap(vec![fill; n]),
+        }
+    }
+}
+
+impl<T: Scalar> std::ops::Deref for Array<T> {
+    type Target = [T];
+
+    fn deref(&self) -> &[T] {
+        match &self.inner {
+            Inner::Heap(v) => v,
+            Inner::Pages(m, n) => &bytemuck::cast_slice(&m[..])[..*n],
+        }
+    }
+}
+
+impl<T: Scalar> std::ops::DerefMut for Array<T> {
+    fn deref_mut(&mut self) -> &mut [T] {
+        match &mut self.inner {
+            Inner::Heap(v) => v,
+            Inner::Pages(m, n) => &mut bytemuck::cast_slice_mut(&mut m[..])[..*n],
+        }
+    }
 }
 
 impl<T: Scalar> FlatStore<T> {
@@ -22,17 +81,17 @@ impl<T: Scalar> FlatStore<T> {
         let n = spec.num_voxels() as usize;
         Self {
             spec,
-            data: RwLock::new(vec![fill; n]),
+            data: RwLock::new(Array::filled(n, fill)),
         }
     }
 
     /// The array, for reading.
-    pub fn read(&self) -> RwLockReadGuard<'_, Vec<T>> {
+    pub fn read(&self) -> RwLockReadGuard<'_, Array<T>> {
         self.data.read().expect("lock")
     }
 
     /// The array, for writing.
-    pub fn write(&self) -> RwLockWriteGuard<'_, Vec<T>> {
+    pub fn write(&self) -> RwLockWriteGuard<'_, Array<T>> {
         self.data.write().expect("lock")
     }
 
@@ -117,11 +176,11 @@ impl<T: Scalar> BlockStore<T> for FlatStore<T> {
 }
 
 impl<T: Scalar> Contiguous<T> for FlatStore<T> {
-    fn array(&self) -> RwLockReadGuard<'_, Vec<T>> {
+    fn array(&self) -> RwLockReadGuard<'_, Array<T>> {
         self.read()
     }
 
-    fn array_mut(&self) -> RwLockWriteGuard<'_, Vec<T>> {
+    fn array_mut(&self) -> RwLockWriteGuard<'_, Array<T>> {
         self.write()
     }
 }

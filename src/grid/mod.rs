@@ -35,7 +35,7 @@ pub use decomposition::{
     Reach, Slabs, Whole,
 };
 pub use external::{open_external_array, ExternalArray};
-pub use flat::FlatStore;
+pub use flat::{Array, FlatStore};
 pub use mapped::MappedStore;
 pub use memory::MemStore;
 pub use mmap::MmapStore;

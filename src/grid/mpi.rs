@@ -77,6 +77,72 @@ impl std::fmt::Debug for MpiSlabs {
     }
 }
 
+/// Planes `z` of block `b`.
+type Piece = (Idx3, std::ops::Range<u64>);
+
+/// The bytes of piece `(b, z)` of `data`.
+fn piece_bytes(data: &dyn HaloData, b: Idx3, z: &std::ops::Range<u64>) -> usize {
+    let sh = data.spec().block_shape(b);
+    ((z.end - z.start) * sh[1] * sh[2]) as usize * data.elem_bytes()
+}
+
+impl MpiSlabs {
+    /// One all-to-all of halo pieces: `send[q]` of this rank's blocks to rank `q`,
+    /// `recv[p]` of rank `p`'s blocks into `data`.
+    fn exchange_pieces(
+        &self,
+        data: &dyn HaloData,
+        send: &[Vec<Piece>],
+        recv: &[Vec<Piece>],
+    ) -> Result<(), GridError> {
+        let whole = |b: Idx3, z: &std::ops::Range<u64>| {
+            z.start == 0 && z.end == data.spec().block_shape(b)[0]
+        };
+        let bytes =
+            |ps: &[Piece]| -> usize { ps.iter().map(|(b, z)| piece_bytes(data, *b, z)).sum() };
+        // Sized once: a buffer grown by doubling leaves the smaller ones it outgrew
+        // resident in the heap.
+        let mut out = Vec::with_capacity(send.iter().map(|ps| bytes(ps)).sum());
+        let mut send_counts = Vec::with_capacity(send.len());
+        for ps in send {
+            let before = out.len();
+            for (b, z) in ps {
+                if whole(*b, z) {
+                    data.block_bytes(*b, &mut out)?;
+                } else {
+                    data.planes_bytes(*b, z.clone(), &mut out)?;
+                }
+            }
+            send_counts.push(count(out.len() - before)?);
+        }
+        let recv_counts: Vec<Count> = recv
+            .iter()
+            .map(|ps| count(bytes(ps)))
+            .collect::<Result<_, _>>()?;
+        let mut into = vec![0u8; recv_counts.iter().map(|&c| c as usize).sum()];
+        {
+            let sd = displs(&send_counts);
+            let rd = displs(&recv_counts);
+            let sp = Partition::new(&out[..], &send_counts[..], &sd[..]);
+            let mut rp = PartitionMut::new(&mut into[..], &recv_counts[..], &rd[..]);
+            self.comm.all_to_all_varcount_into(&sp, &mut rp);
+        }
+        self.sent.fetch_add(out.len() as u64, Ordering::Relaxed);
+        drop(out);
+        let mut at = 0;
+        for (b, z) in recv.iter().flatten() {
+            let len = piece_bytes(data, *b, z);
+            if whole(*b, z) {
+                data.put_block_bytes(*b, &into[at..at + len])?;
+            } else {
+                data.put_planes_bytes(*b, z.clone(), &into[at..at + len])?;
+            }
+            at += len;
+        }
+        Ok(())
+    }
+}
+
 // SAFETY: an MPI communicator handle is a plain integer (MPICH) or pointer (Open MPI)
 // naming a library object; the library is initialized with MPI_THREAD_SERIALIZED and
 // harmap calls it from one thread at a time (the stage's driver, between its parallel
@@ -84,6 +150,20 @@ impl std::fmt::Debug for MpiSlabs {
 unsafe impl Send for MpiSlabs {}
 // SAFETY: as above.
 unsafe impl Sync for MpiSlabs {}
+
+/// Bytes a halo exchange sends from one rank to another in one round (more when one
+/// block's planes are more): 2 MiB, or `HARMAP_EXCHANGE_ROUND` bytes (for the tests,
+/// whose halos are smaller than one round).
+fn exchange_round() -> usize {
+    static ROUND: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+    *ROUND.get_or_init(|| {
+        std::env::var("HARMAP_EXCHANGE_ROUND")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .filter(|&r| r > 0)
+            .unwrap_or(2 << 20)
+    })
+}
 
 fn count(n: usize) -> Result<Count, GridError> {
     Count::try_from(n).map_err(|_| {
@@ -150,13 +230,11 @@ impl Decomposition for MpiSlabs {
     fn exchange(&self, _field: &str, data: &dyn HaloData, reach: &Reach) -> Result<(), GridError> {
         let spec = data.spec();
         let nb = spec.blocks();
-        let me = self.part();
-        let n = self.parts();
-        let elem = data.elem_bytes();
+        let (me, n) = (self.part(), self.parts());
         // What rank `to` reads of rank `from`'s blocks: the planes of `reach` (its
         // slab's halo, and on a coarse level of the solve the planes under or over its
         // slabs of the levels next to it), every block of the layers they cross.
-        let pieces = |to: usize, from: usize| -> Vec<(Idx3, std::ops::Range<u64>)> {
+        let pieces = |to: usize, from: usize| -> Vec<Piece> {
             if to == from {
                 return Vec::new();
             }
@@ -171,50 +249,47 @@ impl Decomposition for MpiSlabs {
                 })
                 .collect()
         };
-        let whole =
-            |b: Idx3, z: &std::ops::Range<u64>| z.start == 0 && z.end == spec.block_shape(b)[0];
-        let bytes_of = |b: Idx3, z: &std::ops::Range<u64>| {
-            let sh = spec.block_shape(b);
-            ((z.end - z.start) * sh[1] * sh[2]) as usize * elem
+        // In rounds of about exchange_round() bytes between each pair of ranks, so
+        // that a halo of many planes (the finest level's) never sits whole in a send
+        // and a receive buffer at once. Every rank knows every pair's pieces, so all
+        // take part in as many rounds.
+        let per_round = exchange_round();
+        let round_of = |ps: &[Piece]| -> Vec<usize> {
+            let mut at = 0;
+            ps.iter()
+                .map(|(b, z)| {
+                    let r = at / per_round;
+                    at += piece_bytes(data, *b, z);
+                    r
+                })
+                .collect()
         };
-        let mut send = Vec::new();
-        let mut send_counts = Vec::with_capacity(n);
-        for q in 0..n {
-            let before = send.len();
-            for (b, z) in pieces(q, me) {
-                if whole(b, &z) {
-                    data.block_bytes(b, &mut send)?;
-                } else {
-                    data.planes_bytes(b, z, &mut send)?;
-                }
-            }
-            send_counts.push(count(send.len() - before)?);
-        }
-        let recv_pieces: Vec<_> = (0..n).map(|p| pieces(me, p)).collect();
-        let recv_counts: Vec<Count> = recv_pieces
+        let all: Vec<Vec<Vec<Piece>>> = (0..n)
+            .map(|to| (0..n).map(|from| pieces(to, from)).collect())
+            .collect();
+        let rounds = all
             .iter()
-            .map(|ps| count(ps.iter().map(|(b, z)| bytes_of(*b, z)).sum()))
-            .collect::<Result<_, _>>()?;
-        let total: usize = recv_counts.iter().map(|&c| c as usize).sum();
-        let mut recv = vec![0u8; total];
-        {
-            let sd = displs(&send_counts);
-            let rd = displs(&recv_counts);
-            let sp = Partition::new(&send[..], &send_counts[..], &sd[..]);
-            let mut rp = PartitionMut::new(&mut recv[..], &recv_counts[..], &rd[..]);
-            self.comm.all_to_all_varcount_into(&sp, &mut rp);
-        }
-        self.sent.fetch_add(send.len() as u64, Ordering::Relaxed);
-        drop(send);
-        let mut at = 0;
-        for (b, z) in recv_pieces.into_iter().flatten() {
-            let len = bytes_of(b, &z);
-            if whole(b, &z) {
-                data.put_block_bytes(b, &recv[at..at + len])?;
-            } else {
-                data.put_planes_bytes(b, z, &recv[at..at + len])?;
-            }
-            at += len;
+            .flatten()
+            .filter_map(|ps| round_of(ps).last().map(|r| r + 1))
+            .max()
+            .unwrap_or(0);
+        let send_rounds: Vec<Vec<usize>> = (0..n).map(|q| round_of(&all[q][me])).collect();
+        let recv_rounds: Vec<Vec<usize>> = (0..n).map(|p| round_of(&all[me][p])).collect();
+        for round in 0..rounds {
+            let in_round = |ps: &[Piece], rs: &[usize]| -> Vec<Piece> {
+                ps.iter()
+                    .zip(rs)
+                    .filter(|(_, &r)| r == round)
+                    .map(|(p, _)| p.clone())
+                    .collect()
+            };
+            let send: Vec<_> = (0..n)
+                .map(|q| in_round(&all[q][me], &send_rounds[q]))
+                .collect();
+            let recv: Vec<_> = (0..n)
+                .map(|p| in_round(&all[me][p], &recv_rounds[p]))
+                .collect();
+            self.exchange_pieces(data, &send, &recv)?;
         }
         Ok(())
     }

@@ -150,9 +150,9 @@ pub enum GridError {
 /// again.
 pub trait Contiguous<T>: Send + Sync {
     /// The array, for reading.
-    fn array(&self) -> std::sync::RwLockReadGuard<'_, Vec<T>>;
-    /// The array, for writing (its length must stay the grid's voxel count).
-    fn array_mut(&self) -> std::sync::RwLockWriteGuard<'_, Vec<T>>;
+    fn array(&self) -> std::sync::RwLockReadGuard<'_, super::flat::Array<T>>;
+    /// The array, for writing.
+    fn array_mut(&self) -> std::sync::RwLockWriteGuard<'_, super::flat::Array<T>>;
 }
 
 /// Called by [`BlockStore::write_block_from`] with each row's index in the block, the

@@ -29,7 +29,7 @@ impl Flat<'_> {
     pub fn pre_sweeps(&self, n: usize, measure: bool) -> (f64, u64) {
         let shape = dims(self.spec);
         let f = self.f.map(|f| f.array());
-        let f = f.as_deref().map(Vec::as_slice);
+        let f = f.as_deref().map(std::ops::Deref::deref);
         let u0 = self.u[0].array();
         let st = if measure {
             let (_, sum, n) = block_stats(self.spec, &u0, None, self.runs(), f, true);
@@ -57,7 +57,7 @@ impl Flat<'_> {
     pub fn restrict_into(&self, coarse: &Flat<'_>) {
         let shape = dims(self.spec);
         let f = self.f.map(|f| f.array());
-        let f = f.as_deref().map(Vec::as_slice);
+        let f = f.as_deref().map(std::ops::Deref::deref);
         let u1 = self.u[1].array();
         let cmask = coarse.mask.array();
         let mut cf = coarse
@@ -96,7 +96,7 @@ impl Flat<'_> {
     ) -> (f64, (f64, u64)) {
         let shape = dims(self.spec);
         let f = self.f.map(|f| f.array());
-        let f = f.as_deref().map(Vec::as_slice);
+        let f = f.as_deref().map(std::ops::Deref::deref);
         let mut u1 = self.u[1].array_mut();
         {
             let e = coarse.u[0].array();
