@@ -97,7 +97,7 @@ pub struct VoxelizeArgs {
     #[arg(long, value_name = "SIZE", default_value = "1GiB")]
     pub mem: MemBudget,
     /// Where the intermediate solid grid lives: auto (memory when it fits in half of
-    /// --mem), memory, or disk (a memory-mapped scratch file in the run directory).
+    /// --mem), memory, or disk (a scratch file in the run directory).
     #[arg(long, value_enum, default_value_t = ScratchArg::Auto)]
     pub scratch: ScratchArg,
     /// Shape of a .raw label volume, z,y,x.
@@ -162,7 +162,7 @@ pub enum ScratchArg {
     Auto,
     /// Always memory.
     Memory,
-    /// Always a memory-mapped file.
+    /// Always a scratch file.
     Disk,
 }
 

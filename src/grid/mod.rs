@@ -2,7 +2,7 @@
 //!
 //! - [`GridSpec`]: shape, placement in the world, block shape.
 //! - [`BlockStore`]: read and write blocks, read boxes with a halo; backends
-//!   [`ZarrStore`] (kept arrays), [`MmapStore`] (scratch files), [`MemStore`] and
+//!   [`ZarrStore`] (kept arrays), [`FileStore`] (scratch files), [`MemStore`] and
 //!   [`FlatStore`] (memory); capabilities a backend may offer: [`Contiguous`] (the
 //!   whole grid as one array) and [`BlockStore::map_block`] (blocks read in place).
 //! - [`scratch()`]: the one factory of scratch grids, in memory or in a file
@@ -17,10 +17,10 @@ mod block;
 mod budget;
 mod decomposition;
 mod external;
+mod file;
 mod flat;
 mod mapped;
 mod memory;
-mod mmap;
 #[cfg(feature = "mpi")]
 pub mod mpi;
 mod scratch;
@@ -35,10 +35,10 @@ pub use decomposition::{
     Reach, Slabs, Whole,
 };
 pub use external::{open_external_array, ExternalArray};
+pub use file::FileStore;
 pub use flat::{Array, FlatStore};
 pub use mapped::MappedStore;
 pub use memory::MemStore;
-pub use mmap::MmapStore;
 pub use scratch::{copy_blocks, scratch, Residence};
 pub use spec::GridSpec;
 pub use store::{fill_with, BlockStore, Contiguous, GridError, MappedBlock, Scalar};
@@ -63,7 +63,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mem = MemStore::<u16>::new(spec.clone(), 0);
         let flat = FlatStore::<u16>::new(spec.clone(), 0);
-        let mm = MmapStore::<u16>::create(&dir.path().join("m"), spec.clone()).unwrap();
+        let mm = FileStore::<u16>::create(&dir.path().join("m"), spec.clone()).unwrap();
         let zs = ZarrStore::<u16>::create(
             dir.path(),
             "/a",
@@ -284,7 +284,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mem = MemStore::<u16>::new(spec.clone(), 7);
         let flat = FlatStore::<u16>::new(spec.clone(), 7);
-        let mm = MmapStore::<u16>::create(&dir.path().join("m"), spec.clone()).unwrap();
+        let mm = FileStore::<u16>::create(&dir.path().join("m"), spec.clone()).unwrap();
         fill_with(&mm, 1, |_| 7).unwrap();
         let b = [1, 2, 0];
         // A box around block b with a halo of 2 (off the grid on the low x side).

@@ -1,11 +1,11 @@
 //! Scratch grids: the intermediate fields a stage makes, uses and drops (the solver's
 //! levels, the voxelizer's passes, the map's directions). One factory for all of them,
-//! so the choice of backend — memory or a memory-mapped file — is made in one place,
+//! so the choice of backend — memory or a scratch file — is made in one place,
 //! from where the stage's memory plan says the grid lives.
 
 use std::path::Path;
 
-use super::{BlockStore, FlatStore, GridError, GridSpec, MemStore, MmapStore, Scalar};
+use super::{BlockStore, FileStore, FlatStore, GridError, GridSpec, MemStore, Scalar};
 
 /// Where a scratch grid lives.
 #[derive(Clone, Copy, Debug)]
@@ -15,7 +15,7 @@ pub enum Residence<'a> {
     /// In memory as one C-order array ([`FlatStore`]), which offers the
     /// [`Contiguous`](super::Contiguous) capability to kernels over the whole grid.
     Array,
-    /// In a memory-mapped file at this path ([`MmapStore`]), created or truncated; the
+    /// In a scratch file at this path ([`FileStore`]), created or truncated; the
     /// caller removes it (usually with its directory).
     File(&'a Path),
 }
@@ -35,7 +35,7 @@ pub fn scratch<T: Scalar>(
         Residence::Blocks => Box::new(MemStore::new(spec.clone(), fill)),
         Residence::Array => Box::new(FlatStore::new(spec.clone(), fill)),
         Residence::File(path) => {
-            let s = MmapStore::create(path, spec.clone())?;
+            let s = FileStore::create(path, spec.clone())?;
             if bytemuck::bytes_of(&fill).iter().any(|&b| b != 0) {
                 super::fill_with(&s, 1, |_| fill)?;
             }

@@ -2,7 +2,7 @@
 //!
 //! Stages never import `zarrs` or `memmap2`: they see a [`BlockStore`]. Three backends
 //! implement it: [`ZarrStore`](super::ZarrStore) (what users keep),
-//! [`MmapStore`](super::MmapStore) (uncompressed scratch) and
+//! [`FileStore`](super::FileStore) (uncompressed scratch) and
 //! [`MemStore`](super::MemStore) (tests and small grids).
 //!
 //! **Concurrency rule: no two workers may write the same block at the same time.** Reads

@@ -1,5 +1,5 @@
 //! Geometric multigrid on the masked domain, out of core: every level is a set of block
-//! stores (mask, two generations of u, right-hand side), in memory or in memory-mapped
+//! stores (mask, two generations of u, right-hand side), in memory or in
 //! scratch files as the budget decides, and every operation is a pass over the blocks of
 //! one level, each read once with a halo.
 //!
@@ -103,7 +103,7 @@ impl Default for CycleOptions {
     }
 }
 
-/// Where the stores of a level live: whole arrays in memory, or memory-mapped scratch
+/// Where the stores of a level live: whole arrays in memory, or scratch
 /// files in a directory (through [`crate::grid::scratch`]).
 pub struct Scratch {
     /// Directory of the scratch files.

@@ -551,7 +551,7 @@ fn regions_of(flat: &Flat, changed: &[u32]) -> Vec<Region> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::grid::MmapStore;
+    use crate::grid::FileStore;
     use crate::progress::Silent;
 
     fn store_with(
@@ -559,7 +559,7 @@ mod tests {
         name: &str,
         shape: [u64; 3],
         solid: &(impl Fn(u64, u64, u64) -> bool + Sync + Send),
-    ) -> MmapStore<u8> {
+    ) -> FileStore<u8> {
         let spec = GridSpec {
             shape,
             origin: [0.0; 3],
@@ -567,12 +567,12 @@ mod tests {
             chunk: [4, 4, 4],
             unit: None,
         };
-        let s = MmapStore::<u8>::create(&dir.path().join(name), spec).unwrap();
+        let s = FileStore::<u8>::create(&dir.path().join(name), spec).unwrap();
         crate::grid::fill_with(&s, 1, |[z, y, x]| u8::from(solid(z, y, x))).unwrap();
         s
     }
 
-    fn all(s: &MmapStore<u8>) -> Vec<u8> {
+    fn all(s: &FileStore<u8>) -> Vec<u8> {
         let n = s.spec().shape.map(|c| c as usize);
         s.read_region([0, 0, 0], n, 0).unwrap().data
     }

@@ -55,12 +55,12 @@ pub(super) fn cells_chi(s: [usize; 3], at: impl Fn(usize, usize, usize) -> i64) 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::grid::{GridSpec, MmapStore};
+    use crate::grid::{FileStore, GridSpec};
 
     fn store_with(
         shape: [u64; 3],
         solid: impl Fn(u64, u64, u64) -> bool + Sync + Send,
-    ) -> (tempfile::TempDir, MmapStore<u8>) {
+    ) -> (tempfile::TempDir, FileStore<u8>) {
         let dir = tempfile::tempdir().unwrap();
         let spec = GridSpec {
             shape,
@@ -69,7 +69,7 @@ mod tests {
             chunk: [4, 4, 4],
             unit: None,
         };
-        let s = MmapStore::<u8>::create(&dir.path().join("s"), spec.clone()).unwrap();
+        let s = FileStore::<u8>::create(&dir.path().join("s"), spec.clone()).unwrap();
         crate::grid::fill_with(&s, 1, |[z, y, x]| u8::from(solid(z, y, x))).unwrap();
         (dir, s)
     }

@@ -152,7 +152,7 @@ pub enum Scratch {
     Auto,
     /// Always in memory.
     Memory,
-    /// Always in a memory-mapped file, read and written block by block.
+    /// Always in a scratch file, read and written block by block.
     Disk,
 }
 

@@ -45,7 +45,7 @@ impl Default for VoxelizeOptions {
     }
 }
 
-/// An intermediate u8 grid: in memory, or the memory-mapped file `name` in `dir` (which
+/// An intermediate u8 grid: in memory, or the scratch file `name` in `dir` (which
 /// is created either way).
 pub(crate) fn scratch_grid(
     dir: &std::path::Path,

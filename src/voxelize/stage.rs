@@ -55,7 +55,7 @@ pub fn voxelize(
     let c = opts.chunk;
     let plane = spec.shape[1] * spec.shape[2];
     // The solid occupancy lives in memory when it fits in half of what the budget leaves
-    // beside the shape, else in an uncompressed memory-mapped scratch file; both give the
+    // beside the shape, else in an uncompressed scratch file; both give the
     // same labels. What stays resident through every pass is charged to each of them.
     let in_memory = opts
         .scratch
