@@ -201,6 +201,36 @@ fn crambin_on_one_two_and_three_ranks_is_the_same_bytes_as_one_process() {
     same_bytes_on_ranks(&pdb, &["--spacing", "0.5"], &[1, 2, 3], &[]);
 }
 
+/// `harmap bench trace` and `bench map` on 2 ranks: one table (rank 0 prints it) with a
+/// line per rank after each row (seconds, bytes sent, peak memory), and the benchmark's
+/// run removed once every rank is done with it.
+#[test]
+fn benchmarks_on_ranks_print_one_table_with_a_line_per_rank() {
+    let Some(mpiexec) = mpiexec() else {
+        return;
+    };
+    let _one = JOBS
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    for what in [&["trace", "--sample", "500"][..], &["map"][..]] {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let mut args = vec!["--threads", "1", "bench"];
+        args.extend_from_slice(what);
+        args.extend_from_slice(&["--n", "48", "--dir", dir.path().to_str().unwrap()]);
+        let out = run(&mpiexec, 2, &args);
+        let text = String::from_utf8_lossy(&out.stdout);
+        let count = |s: &str| text.lines().filter(|l| l.contains(s)).count();
+        assert_eq!(count("harmap bench"), 1, "{what:?}: one title\n{text}");
+        assert_eq!(count("2 MPI ranks"), 1, "{what:?}\n{text}");
+        assert_eq!(count("rank 0:"), 1, "{what:?}\n{text}");
+        assert_eq!(count("rank 1:"), 1, "{what:?}\n{text}");
+        assert!(
+            std::fs::read_dir(dir.path()).unwrap().next().is_none(),
+            "{what:?}: the benchmark's run was left behind"
+        );
+    }
+}
+
 /// Options the ranks cannot run (blocks 9 voxels high do not line up with the next
 /// multigrid level's) are bad usage: exit 2 from mpiexec, with the fix, and no phi.
 #[test]

@@ -180,10 +180,7 @@ fn bench_solve(a: &Args, g: &Global) -> anyhow::Result<()> {
             opts.cycle.kind.name(),
             a.mem,
             rayon::current_num_threads(),
-            match harmap::grid::world().parts() {
-                1 => String::new(),
-                n => format!(", {n} MPI ranks"),
-            }
+            ranks_suffix()
         );
         println!(
             "{:>6} {:>9} {:>7} {:>8} {:>14} {:>10} {:>12}",
@@ -210,9 +207,7 @@ fn bench_solve(a: &Args, g: &Global) -> anyhow::Result<()> {
                 );
             }
             per_rank(t, sent)?;
-            if !a.keep && harmap::grid::world().is_root() {
-                std::fs::remove_dir_all(&out)?;
-            }
+            remove_unless_kept(a, &out)?;
         }
         Ok(())
     })
@@ -222,16 +217,21 @@ fn bench_solve(a: &Args, g: &Global) -> anyhow::Result<()> {
 /// solved in --dir), then the whole trace of --sample boundary seeds, timed.
 fn bench_trace(a: &Args, g: &Global) -> anyhow::Result<()> {
     use harmap::trace::{trace, TraceOptions};
-    println!(
-        "harmap bench trace: standard ball (radius 0.45 N, sink radius 2), {} boundary seeds, --mem {}, {} threads",
-        a.sample,
-        a.mem,
-        rayon::current_num_threads()
-    );
-    println!(
-        "{:>6} {:>8} {:>9} {:>13} {:>11} {:>9} {:>12}",
-        "N", "seeds", "seconds", "streamlines/s", "steps/line", "reached", "peak RSS"
-    );
+    // On MPI ranks rank 0 prints (the rank lines after each row are per rank).
+    let root = harmap::grid::world().is_root();
+    if root {
+        println!(
+            "harmap bench trace: standard ball (radius 0.45 N, sink radius 2), {} boundary seeds, --mem {}, {} threads{}",
+            a.sample,
+            a.mem,
+            rayon::current_num_threads(),
+            ranks_suffix()
+        );
+        println!(
+            "{:>6} {:>8} {:>9} {:>13} {:>11} {:>9} {:>12}",
+            "N", "seeds", "seconds", "streamlines/s", "steps/line", "reached", "peak RSS"
+        );
+    }
     let bars = Bars::new(g);
     in_bench_dir(a.dir.as_ref(), |dir| {
         for &n in &a.n {
@@ -242,20 +242,21 @@ fn bench_trace(a: &Args, g: &Global) -> anyhow::Result<()> {
                 mem: a.mem,
                 ..TraceOptions::default()
             };
-            let t = Instant::now();
+            let (t, sent) = (Instant::now(), harmap::grid::world().bytes_sent());
             let r = trace(&run, &opts, &bars)?;
             let secs = t.elapsed().as_secs_f64();
-            println!(
-                "{n:>6} {:>8} {secs:>9.3} {:>13.0} {:>11.1} {:>8.2}% {:>12}",
-                r.seeds,
-                r.seeds as f64 / secs,
-                r.mean_steps,
-                100.0 * r.reached_fraction,
-                harmap::grid::human(peak_rss())
-            );
-            if !a.keep {
-                std::fs::remove_dir_all(&out)?;
+            if root {
+                println!(
+                    "{n:>6} {:>8} {secs:>9.3} {:>13.0} {:>11.1} {:>8.2}% {:>12}",
+                    r.seeds,
+                    r.seeds as f64 / secs,
+                    r.mean_steps,
+                    100.0 * r.reached_fraction,
+                    harmap::grid::human(peak_rss())
+                );
             }
+            per_rank(t, sent)?;
+            remove_unless_kept(a, &out)?;
         }
         Ok(())
     })
@@ -288,15 +289,20 @@ fn solved_ball(
 /// in --dir with its recorded time), then the default (upwind) map, timed.
 fn bench_map(a: &Args, g: &Global) -> anyhow::Result<()> {
     use harmap::map::{map, MapOptions};
-    println!(
-        "harmap bench map: standard ball (radius 0.45 N, sink radius 2), upwind map, --mem {}, {} threads",
-        a.mem,
-        rayon::current_num_threads()
-    );
-    println!(
-        "{:>6} {:>11} {:>9} {:>10} {:>11} {:>7} {:>12}",
-        "N", "solve (s)", "map (s)", "map/solve", "voxels/s", "rounds", "peak RSS"
-    );
+    // On MPI ranks rank 0 prints (the rank lines after each row are per rank).
+    let root = harmap::grid::world().is_root();
+    if root {
+        println!(
+            "harmap bench map: standard ball (radius 0.45 N, sink radius 2), upwind map, --mem {}, {} threads{}",
+            a.mem,
+            rayon::current_num_threads(),
+            ranks_suffix()
+        );
+        println!(
+            "{:>6} {:>11} {:>9} {:>10} {:>11} {:>7} {:>12}",
+            "N", "solve (s)", "map (s)", "map/solve", "voxels/s", "rounds", "peak RSS"
+        );
+    }
     let bars = Bars::new(g);
     in_bench_dir(a.dir.as_ref(), |dir| {
         for &n in &a.n {
@@ -306,19 +312,20 @@ fn bench_map(a: &Args, g: &Global) -> anyhow::Result<()> {
                 mem: a.mem,
                 ..MapOptions::default()
             };
-            let t = Instant::now();
+            let (t, sent) = (Instant::now(), harmap::grid::world().bytes_sent());
             let r = map(&run, &opts, &bars)?;
             let secs = t.elapsed().as_secs_f64();
             let rounds = r.upwind.map_or(0, |u| u.rounds[0] + u.rounds[1]);
-            println!(
-                "{n:>6} {solve_secs:>11.3} {secs:>9.3} {:>10.2} {:>11.3e} {rounds:>7} {:>12}",
-                secs / solve_secs,
-                r.voxels as f64 / secs,
-                harmap::grid::human(peak_rss())
-            );
-            if !a.keep {
-                std::fs::remove_dir_all(&out)?;
+            if root {
+                println!(
+                    "{n:>6} {solve_secs:>11.3} {secs:>9.3} {:>10.2} {:>11.3e} {rounds:>7} {:>12}",
+                    secs / solve_secs,
+                    r.voxels as f64 / secs,
+                    harmap::grid::human(peak_rss())
+                );
             }
+            per_rank(t, sent)?;
+            remove_unless_kept(a, &out)?;
         }
         Ok(())
     })
@@ -345,6 +352,25 @@ fn standard_ball(
     }
     w.barrier()?;
     Ok(harmap::run::RunDir::open(out)?)
+}
+
+/// ", K MPI ranks" on K > 1 ranks, else nothing: the end of a benchmark's title.
+fn ranks_suffix() -> String {
+    match harmap::grid::world().parts() {
+        1 => String::new(),
+        n => format!(", {n} MPI ranks"),
+    }
+}
+
+/// Remove the benchmark's run `out` unless --keep: on MPI ranks rank 0 alone, after
+/// every rank is done with it.
+fn remove_unless_kept(a: &Args, out: &std::path::Path) -> anyhow::Result<()> {
+    let w = harmap::grid::world();
+    w.barrier()?;
+    if !a.keep && w.is_root() {
+        std::fs::remove_dir_all(out)?;
+    }
+    Ok(())
 }
 
 /// On MPI ranks, each rank's seconds, bytes sent and peak resident memory since `t`
