@@ -29,6 +29,12 @@ fn mpiexec() -> Option<PathBuf> {
 
 static JOBS: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
+/// One job at a time: the ranks of two would share the cores.
+fn one_job() -> std::sync::MutexGuard<'static, ()> {
+    JOBS.lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 fn harmap() -> &'static str {
     env!("CARGO_BIN_EXE_harmap")
 }
@@ -153,10 +159,7 @@ fn reports(root: &Path) -> Vec<(String, Vec<u8>)> {
 /// `env` is set for the runs on ranks.
 fn same_bytes_on_ranks(input: &Path, args: &[&str], ranks: &[usize], env: &[(&str, &str)]) {
     let Some(mpiexec) = mpiexec() else { return };
-    // One job at a time: the ranks of two would share the cores.
-    let _one = JOBS
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let _one = one_job();
     let dir = tempfile::tempdir().unwrap();
     let go = |n: usize| {
         let out = dir.path().join(format!("r{n}.harmap"));
@@ -209,9 +212,7 @@ fn benchmarks_on_ranks_print_one_table_with_a_line_per_rank() {
     let Some(mpiexec) = mpiexec() else {
         return;
     };
-    let _one = JOBS
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let _one = one_job();
     for what in [&["trace", "--sample", "500"][..], &["map"][..]] {
         let dir = tempfile::tempdir().expect("temp dir");
         let mut args = vec!["--threads", "1", "bench"];
@@ -238,9 +239,7 @@ fn blocks_the_ranks_cannot_share_are_bad_usage() {
     let Some(mpiexec) = mpiexec() else {
         return;
     };
-    let _one = JOBS
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let _one = one_job();
     let dir = tempfile::tempdir().expect("temp dir");
     let out = dir.path().join("run");
     let status = Command::new(&mpiexec)
@@ -301,9 +300,7 @@ fn a_killed_rank_ends_the_job_and_the_resumed_solve_gives_the_same_phi() {
     let Some(spot) = shared_data("meshes/spot.obj") else {
         return;
     };
-    let _one = JOBS
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let _one = one_job();
     let dir = tempfile::tempdir().unwrap();
     let solve = [
         "--method",

@@ -254,15 +254,18 @@ impl Decomposition for MpiSlabs {
         // and a receive buffer at once. Every rank knows every pair's pieces, so all
         // take part in as many rounds.
         let per_round = exchange_round();
-        let round_of = |ps: &[Piece]| -> Vec<usize> {
+        let by_round = |ps: &[Piece]| -> Vec<Vec<Piece>> {
+            let mut rounds: Vec<Vec<Piece>> = Vec::new();
             let mut at = 0;
-            ps.iter()
-                .map(|(b, z)| {
-                    let r = at / per_round;
-                    at += piece_bytes(data, *b, z);
-                    r
-                })
-                .collect()
+            for (b, z) in ps {
+                let r = at / per_round;
+                at += piece_bytes(data, *b, z);
+                if rounds.len() <= r {
+                    rounds.resize_with(r + 1, Vec::new);
+                }
+                rounds[r].push((*b, z.clone()));
+            }
+            rounds
         };
         let all: Vec<Vec<Vec<Piece>>> = (0..n)
             .map(|to| (0..n).map(|from| pieces(to, from)).collect())
@@ -270,25 +273,19 @@ impl Decomposition for MpiSlabs {
         let rounds = all
             .iter()
             .flatten()
-            .filter_map(|ps| round_of(ps).last().map(|r| r + 1))
+            .map(|ps| by_round(ps).len())
             .max()
             .unwrap_or(0);
-        let send_rounds: Vec<Vec<usize>> = (0..n).map(|q| round_of(&all[q][me])).collect();
-        let recv_rounds: Vec<Vec<usize>> = (0..n).map(|p| round_of(&all[me][p])).collect();
+        let send: Vec<_> = (0..n).map(|q| by_round(&all[q][me])).collect();
+        let recv: Vec<_> = (0..n).map(|p| by_round(&all[me][p])).collect();
         for round in 0..rounds {
-            let in_round = |ps: &[Piece], rs: &[usize]| -> Vec<Piece> {
-                ps.iter()
-                    .zip(rs)
-                    .filter(|(_, &r)| r == round)
-                    .map(|(p, _)| p.clone())
+            let of = |lists: &[Vec<Vec<Piece>>]| -> Vec<Vec<Piece>> {
+                lists
+                    .iter()
+                    .map(|l| l.get(round).cloned().unwrap_or_default())
                     .collect()
             };
-            let send: Vec<_> = (0..n)
-                .map(|q| in_round(&all[q][me], &send_rounds[q]))
-                .collect();
-            let recv: Vec<_> = (0..n)
-                .map(|p| in_round(&all[me][p], &recv_rounds[p]))
-                .collect();
+            let (send, recv) = (of(&send), of(&recv));
             self.exchange_pieces(data, &send, &recv)?;
         }
         Ok(())
