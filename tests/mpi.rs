@@ -202,6 +202,10 @@ fn crambin_on_one_two_and_three_ranks_is_the_same_bytes_as_one_process() {
         return;
     };
     same_bytes_on_ranks(&pdb, &["--spacing", "0.5"], &[1, 2, 3], &[]);
+    // Blocks of 32: three block layers, so that on 3 ranks the middle one has two
+    // slab faces. A molecule solves on the staircase, so the finest level in memory
+    // runs the whole-array passes on each rank's slab (its tiny values deepened).
+    same_bytes_on_ranks(&pdb, &["--spacing", "0.5", "--chunk", "32"], &[2, 3], &[]);
 }
 
 /// `harmap bench trace` and `bench map` on 2 ranks: one table (rank 0 prints it) with a

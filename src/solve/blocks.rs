@@ -93,6 +93,17 @@ impl BlockLoop<'_> {
         f: impl Fn(Idx3) -> Result<PassStats, GridError> + Sync + Send,
     ) -> Result<PassStats, GridError> {
         let parts = self.map(spec, f)?;
+        self.reduce_stats(spec, &parts)
+    }
+
+    /// Per-block numbers of the owned blocks (`parts`) completed with every other
+    /// process's and combined: the residual sums and counts added in block order, the
+    /// largest change.
+    pub fn reduce_stats(
+        &self,
+        spec: &GridSpec,
+        parts: &[(Idx3, PassStats)],
+    ) -> Result<PassStats, GridError> {
         let res = self.gather(spec, parts.iter().map(|(b, p)| (*b, p.res_sq)))?;
         // Counts are below 2^53: exact as f64.
         let count = self.gather(spec, parts.iter().map(|(b, p)| (*b, p.count as f64)))?;

@@ -46,7 +46,7 @@ use std::path::PathBuf;
 use super::blocks::BlockLoop;
 use super::coarsen::{coarse_specs, coarsen_mask};
 use super::cuts::is_unknown;
-use super::flat::Flat;
+use super::flat::{Flat, PlaneStats};
 use super::level::{Change, Level, Measure, PassStats, Slab};
 use super::smooth::Smooth;
 use super::stencil::optimal_omega;
@@ -112,7 +112,11 @@ pub struct Scratch {
 
 impl Scratch {
     /// A new store of `T` for `spec` reading `fill`, named `name` for its scratch file;
-    /// `in_memory` chooses a whole array over a file.
+    /// `in_memory` chooses a whole array over a file. On MPI ranks too a level in
+    /// memory is one array, whose passes run on the rank's slab
+    /// ([`super::level::Slab`]) and touch only its planes and those it receives: the
+    /// rest stays unwritten, and an array of zeros gets pages of its own that are not
+    /// resident until written ([`crate::grid::Array`]).
     pub fn make<T: Scalar>(
         &self,
         name: &str,
@@ -120,37 +124,8 @@ impl Scratch {
         in_memory: bool,
         fill: T,
     ) -> Result<Box<dyn BlockStore<T>>, GridError> {
-        self.make_as(name, spec, in_memory, fill, false)
-    }
-
-    /// [`Scratch::make`] for a coarse level: on MPI ranks too a level in memory is one
-    /// array, whose passes run on the rank's slab ([`super::level::Slab`]) and touch
-    /// only its planes and those it receives (the rest stays unwritten; whether its
-    /// pages are resident depends on the allocator handing out fresh zero pages).
-    pub fn make_coarse<T: Scalar>(
-        &self,
-        name: &str,
-        spec: &GridSpec,
-        in_memory: bool,
-        fill: T,
-    ) -> Result<Box<dyn BlockStore<T>>, GridError> {
-        self.make_as(name, spec, in_memory, fill, true)
-    }
-
-    fn make_as<T: Scalar>(
-        &self,
-        name: &str,
-        spec: &GridSpec,
-        in_memory: bool,
-        fill: T,
-        array_on_ranks: bool,
-    ) -> Result<Box<dyn BlockStore<T>>, GridError> {
         let file = self.dir.join(format!("{name}.bin"));
-        // On MPI ranks the finest level in memory is held block by block: a rank holds
-        // only its slab and the planes of other blocks it received.
-        let at = if in_memory && crate::grid::world().parts() > 1 && !array_on_ranks {
-            Residence::Blocks
-        } else if in_memory {
+        let at = if in_memory {
             Residence::Array
         } else {
             Residence::File(&file)
@@ -246,7 +221,7 @@ pub fn held_share(levels: &[GridSpec], k: usize, halo: u64, decomp: &dyn Decompo
 
 /// The planes this part computes and owns of a level held as one array: the hull of
 /// the planes it reads (`reach`, which holds its slab and the halo around it).
-fn slab_of(spec: &GridSpec, reach: &Reach, decomp: &dyn Decomposition) -> Slab {
+pub(super) fn slab_of(spec: &GridSpec, reach: &Reach, decomp: &dyn Decomposition) -> Slab {
     let layers = decomp.z_layers(decomp.part(), spec.blocks());
     let own = layer_planes(spec, &layers).map_or(0..0, |r| r.start as usize..r.end as usize);
     let wanted = reach.wanted(spec, decomp.part(), &layers);
@@ -302,7 +277,7 @@ impl<'d> Hierarchy<'d> {
             let mem = in_memory(lvl, &spec);
             let reach = reach_of(&all, lvl, halo, blocks.decomp);
             let slab = (mem && !blocks.owns_all()).then(|| slab_of(&spec, &reach, blocks.decomp));
-            let mask = maker.make_coarse::<u8>(&format!("mask{lvl}"), &spec, mem, 0)?;
+            let mask = maker.make::<u8>(&format!("mask{lvl}"), &spec, mem, 0)?;
             let above = levels.last().expect("a finer level");
             coarsen_mask(
                 above,
@@ -313,10 +288,10 @@ impl<'d> Hierarchy<'d> {
                 &blocks,
             )?;
             let u = [
-                maker.make_coarse::<f64>(&format!("u{lvl}a"), &spec, mem, 0.0)?,
-                maker.make_coarse::<f64>(&format!("u{lvl}b"), &spec, mem, 0.0)?,
+                maker.make::<f64>(&format!("u{lvl}a"), &spec, mem, 0.0)?,
+                maker.make::<f64>(&format!("u{lvl}b"), &spec, mem, 0.0)?,
             ];
-            let f = Some(maker.make_coarse::<f64>(&format!("f{lvl}"), &spec, mem, 0.0)?);
+            let f = Some(maker.make::<f64>(&format!("f{lvl}"), &spec, mem, 0.0)?);
             levels.push(Level {
                 spec,
                 mask,
@@ -355,6 +330,26 @@ impl<'d> Hierarchy<'d> {
         self.levels[k].flat_with(self.levels.get(k + 1)?, &self.blocks)
     }
 
+    /// The numbers a whole-array pass of level `k` measured: in one process its sums
+    /// over the whole array; on MPI ranks each rank's blocks, completed with the
+    /// others' and added in block order (the same numbers).
+    fn plane_numbers(&self, k: usize, st: &PlaneStats) -> Result<PassStats, GridError> {
+        let lvl = &self.levels[k];
+        match &lvl.slab {
+            None => {
+                let (max_change, res_sq, count) = st.whole(&lvl.spec);
+                Ok(PassStats {
+                    res_sq,
+                    count,
+                    max_change,
+                })
+            }
+            Some(s) => self
+                .blocks
+                .reduce_stats(&lvl.spec, &st.per_block(&lvl.spec, s.layers.clone())),
+        }
+    }
+
     /// The first pass of a V-cycle on the finest level: pre-smoothing from generation 0
     /// into 1, measuring the residual of generation 0 when `measure` (the first cycle,
     /// and the first after a resume; later cycles had it measured by the cycle before).
@@ -367,11 +362,10 @@ impl<'d> Hierarchy<'d> {
     /// fused; with `measure`, the residual of generation 0.
     fn pre_pass(&self, k: usize, sweeps: usize, measure: bool) -> Result<PassStats, GridError> {
         if let Some((f, coarse)) = self.flat(k) {
-            let (res_sq, count) = if f.slab.is_some() {
+            let st = if f.slab.is_some() {
                 // On a rank: the sweeps, generation 1's halo, then the restriction
                 // (which reads fine planes past the slab where the levels do not nest).
-                assert!(!measure, "on ranks the finest level is held block by block");
-                let st = f.pre_sweeps(sweeps, false);
+                let st = f.pre_sweeps(sweeps, measure);
                 let lvl = &self.levels[k];
                 self.blocks
                     .exchange(&lvl.field("u1"), &*lvl.u[1], &lvl.reach)?;
@@ -381,10 +375,13 @@ impl<'d> Hierarchy<'d> {
             } else {
                 f.pre(sweeps, measure, &coarse)
             };
+            if !measure {
+                return Ok(PassStats::default());
+            }
+            let st = self.plane_numbers(k, &st)?;
             return Ok(PassStats {
-                res_sq,
-                count,
                 max_change: 0.0,
+                ..st
             });
         }
         let pass = Smooth {
@@ -448,18 +445,16 @@ impl<'d> Hierarchy<'d> {
             None => lvl.step_length(coarse, blocks)?,
         };
         if let Some((f, c)) = self.flat(k) {
-            let (max_change, (res_sq, count)) = f.post(sweeps, &c, alpha, k == 0, k == 0);
+            let st = f.post(sweeps, &c, alpha, k == 0, k == 0);
             if f.slab.is_some() {
-                assert!(k > 0, "on ranks the finest level is held block by block");
                 self.blocks
                     .exchange(&lvl.field("u0"), &*lvl.u[0], &lvl.reach)?;
             }
-            let st = PassStats {
-                res_sq,
-                count,
-                max_change,
-            };
-            return Ok((max_change, st));
+            if k > 0 {
+                return Ok((0.0, PassStats::default()));
+            }
+            let st = self.plane_numbers(k, &st)?;
+            return Ok((st.max_change, st));
         }
         let pass = Smooth {
             coarse: Some((coarse, alpha)),

@@ -282,7 +282,9 @@ fn build<'d>(
         depth: 0,
         halo,
         reach: Reach::Halo(halo),
-        slab: None,
+        // On ranks a level in memory runs its whole-array passes on the rank's slab.
+        slab: (mem0 && !blocks.owns_all())
+            .then(|| super::multigrid::slab_of(spec, &Reach::Halo(halo), decomp)),
     };
     blocks.exchange(&fine.field("mask"), &*fine.mask, &fine.reach)?;
     let h = Hierarchy::build(

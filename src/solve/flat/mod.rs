@@ -28,6 +28,7 @@ mod restrict;
 pub mod runs;
 mod smooth;
 mod stats;
+pub(crate) use stats::PlaneStats;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 

@@ -9,7 +9,7 @@ use super::prolong::prolong_add;
 use super::restrict::restrict;
 use super::runs::dims;
 use super::smooth::sweeps;
-use super::stats::block_stats;
+use super::stats::{plane_stats, PlaneStats};
 use super::Flat;
 
 impl Flat<'_> {
@@ -17,7 +17,7 @@ impl Flat<'_> {
     /// residual of generation 0 first; then the restriction of the defect into
     /// `coarse` (its right-hand side, and a zero correction in its generation 0).
     #[must_use]
-    pub fn pre(&self, n: usize, measure: bool, coarse: &Flat<'_>) -> (f64, u64) {
+    pub(crate) fn pre(&self, n: usize, measure: bool, coarse: &Flat<'_>) -> PlaneStats {
         let st = self.pre_sweeps(n, measure);
         self.restrict_into(coarse);
         st
@@ -26,17 +26,12 @@ impl Flat<'_> {
     /// The sweeps of [`Flat::pre`] (and its residual), without the restriction: on MPI
     /// ranks generation 1's halo is exchanged between the two.
     #[must_use]
-    pub fn pre_sweeps(&self, n: usize, measure: bool) -> (f64, u64) {
+    pub(crate) fn pre_sweeps(&self, n: usize, measure: bool) -> PlaneStats {
         let shape = dims(self.spec);
         let f = self.f.map(|f| f.array());
         let f = f.as_deref().map(std::ops::Deref::deref);
         let u0 = self.u[0].array();
-        let st = if measure {
-            let (_, sum, n) = block_stats(self.spec, &u0, None, self.runs(), f, true);
-            (sum, n)
-        } else {
-            (0.0, 0)
-        };
+        let st = plane_stats(self.spec, &u0, None, self.runs(), f, measure, &self.own());
         let mut u1 = self.u[1].array_mut();
         // Generation 1 holds the fixed values once it has been written whole.
         let fixed = self.cache.fixed_in_both.swap(true, Ordering::Relaxed);
@@ -85,15 +80,15 @@ impl Flat<'_> {
     /// Correction and post-smoothing: generation 0 = generation 1 plus `alpha` times the
     /// interpolated correction of `coarse`, after `n` sweeps. Returns the largest change
     /// against generation 0's previous content (with `change`) and the residual of the
-    /// result (with `measure`).
-    pub fn post(
+    /// result (with `measure`), on the planes this process owns.
+    pub(crate) fn post(
         &self,
         n: usize,
         coarse: &Flat<'_>,
         alpha: f64,
         change: bool,
         measure: bool,
-    ) -> (f64, (f64, u64)) {
+    ) -> PlaneStats {
         let shape = dims(self.spec);
         let f = self.f.map(|f| f.array());
         let f = f.as_deref().map(std::ops::Deref::deref);
@@ -118,8 +113,6 @@ impl Flat<'_> {
         // The largest change against the old state and the residual of the new one, in
         // one pass.
         let old = change.then_some(&u1[..]);
-        let (max, sum, n) = block_stats(self.spec, &u0, old, self.runs(), f, measure);
-        let st = (sum, n);
-        (max, st)
+        plane_stats(self.spec, &u0, old, self.runs(), f, measure, &self.own())
     }
 }
