@@ -414,3 +414,61 @@ fn a_killed_rank_ends_the_job_and_the_resumed_solve_gives_the_same_phi() {
         assert!(got == want, "resumed on {resume_on} ranks: phi differs");
     }
 }
+
+/// `harmap voxelize` under mpiexec: every rank computes its slab of the solid, rank 0
+/// the rest; the labels are one process's, for a molecule (three block layers of 32),
+/// a mesh, and a probe ladder (one solid pass per probe).
+#[test]
+fn voxelize_on_ranks_gives_one_process_labels() {
+    let Some(mpiexec) = mpiexec() else { return };
+    let (Some(pdb), Some(spot)) = (
+        shared_data("molecules/1crn.pdb"),
+        shared_data("meshes/spot.obj"),
+    ) else {
+        return;
+    };
+    let _one = one_job();
+    let dir = tempfile::tempdir().unwrap();
+    let cases: [(&Path, &[&str]); 3] = [
+        (&pdb, &["--spacing", "0.5", "--chunk", "32"]),
+        (&spot, &["--resolution", "96", "--chunk", "32"]),
+        (
+            &pdb,
+            &[
+                "--spacing",
+                "0.5",
+                "--chunk",
+                "32",
+                "--probe",
+                "0.5,1.4",
+                "--allow-genus",
+            ],
+        ),
+    ];
+    for (k, (input, args)) in cases.iter().enumerate() {
+        let labels = |ranks: usize| {
+            let out = dir.path().join(format!("c{k}r{ranks}.harmap"));
+            let mut a = vec![
+                "voxelize",
+                input.to_str().unwrap(),
+                "-o",
+                out.to_str().unwrap(),
+            ];
+            a.extend_from_slice(args);
+            run(&mpiexec, ranks, &a);
+            let run = RunDir::open(&out).expect("a run");
+            image::<u8>(&run, "labels", 0)
+        };
+        let one = labels(0);
+        assert!(
+            one.iter().any(|&l| l != 0),
+            "case {k}: an empty solid proves nothing"
+        );
+        for ranks in [2, 3] {
+            assert!(
+                labels(ranks) == one,
+                "case {k}, {ranks} ranks: the labels differ"
+            );
+        }
+    }
+}

@@ -6,7 +6,7 @@ use anyhow::Context;
 use harmap::grid::MemBudget;
 use harmap::input::molecule::MoleculeOptions;
 use harmap::input::{InputOptions, RawDtype, RawSpec};
-use harmap::pipeline::{voxelize_new_run, Source};
+use harmap::pipeline::{serve_voxelize, voxelize_new_run_on, Source};
 use harmap::voxelize::spheres::MolSurface;
 use harmap::voxelize::{labels::NAMES, repair_summary, Scratch, TopologyMode, VoxelizeOptions};
 
@@ -251,14 +251,21 @@ impl VoxelizeArgs {
 pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
     let (opts, iopts) = a.opts.options()?;
     let bars = Bars::new(g);
-    let (run, r) = voxelize_new_run(
-        &Source::File(&a.input, &iopts),
-        &opts,
-        &a.output,
-        a.force,
-        &bars,
-    )
-    .with_context(|| format!("voxelizing {}", a.input.display()))?;
+    let source = Source::File(&a.input, &iopts);
+    // On MPI ranks every rank computes its slab of the solid; rank 0 does the rest
+    // (and writes the run) while the others wait.
+    let world = harmap::grid::world();
+    if !world.is_root() {
+        serve_voxelize(&source, &bars, world)
+            .with_context(|| format!("voxelizing {}", a.input.display()))?;
+        world.barrier()?;
+        return Ok(());
+    }
+    let done = harmap::grid::solo(|| {
+        voxelize_new_run_on(&source, &opts, &a.output, a.force, &bars, world)
+    });
+    let (run, r) = done.with_context(|| format!("voxelizing {}", a.input.display()))?;
+    world.barrier()?;
     let s = r.grid.shape;
     g.say(&format!(
         "{}: {} x {} x {} voxels of {:.6} ({} solid), center ({:.4}, {:.4}, {:.4}) at depth {:.1} voxels, genus {}",

@@ -8,8 +8,8 @@ use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use super::{
-    check_solve, check_stop_radius, voxelize_new_run, PipelineError, PipelineOptions,
-    PipelineReport, Source, StageRun, Summary,
+    check_solve, check_stop_radius, serve_voxelize, voxelize_new_run_on, PipelineError,
+    PipelineOptions, PipelineReport, Source, StageRun, Summary,
 };
 use crate::grid::{solo, world};
 use crate::progress::Progress;
@@ -72,13 +72,16 @@ pub fn run(
         if progress.interrupted() {
             return Err(stopped("voxelize"));
         }
-        // On MPI ranks rank 0 voxelizes alone while the others wait (docs/scale-out.md).
+        // On MPI ranks every rank computes its slab of the solid, and rank 0 the
+        // passes after it alone while the others wait (docs/scale-out.md).
         let w = world();
         if w.is_root() {
             let (_, r) =
-                solo(|| voxelize_new_run(source, &opts.voxelize, out, opts.force, progress))
+                solo(|| voxelize_new_run_on(source, &opts.voxelize, out, opts.force, progress, w))
                     .map_err(|e| fail("voxelize", e))?;
             report.voxelize = Some(r);
+        } else {
+            serve_voxelize(source, progress, w).map_err(|e| fail("voxelize", e))?;
         }
         w.barrier().map_err(|e| PipelineError::Stage(e.into()))?;
         report.stages.push(("voxelize", ran(None)));

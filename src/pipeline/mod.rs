@@ -22,7 +22,7 @@ use crate::voxelize::{VoxelizeOptions, VoxelizeReport};
 
 pub use chain::run;
 pub use checks::{check_solve, check_stop_radius};
-pub use new_run::{standard_ball_run, voxelize_new_run};
+pub use new_run::{serve_voxelize, standard_ball_run, voxelize_new_run, voxelize_new_run_on};
 
 /// Where the shape comes from.
 #[derive(Clone, Debug)]

@@ -6,6 +6,7 @@ use std::time::Instant;
 
 use serde_json::{json, Value};
 
+use crate::grid::{Decomposition, Whole};
 use crate::input::{self, Shape};
 use crate::progress::Progress;
 use crate::run::{RunDir, Staging};
@@ -23,8 +24,53 @@ pub fn voxelize_new_run(
     force: bool,
     progress: &dyn Progress,
 ) -> Result<(RunDir, VoxelizeReport), crate::Error> {
+    voxelize_new_run_on(source, opts, out, force, progress, &Whole)
+}
+
+/// [`voxelize_new_run`] on rank 0 of the MPI ranks `decomp`, while every other rank
+/// runs [`serve_voxelize`]: they compute their slabs of the solid, rank 0 the rest.
+pub fn voxelize_new_run_on(
+    source: &Source<'_>,
+    opts: &VoxelizeOptions,
+    out: &Path,
+    force: bool,
+    progress: &dyn Progress,
+    decomp: &dyn Decomposition,
+) -> Result<(RunDir, VoxelizeReport), crate::Error> {
     let t0 = Instant::now();
-    let (shape, input_meta, name) = match source {
+    let (shape, input_meta, name) = load(source)?;
+    let (staging, report, used) =
+        voxelize_probes(&shape, &name, opts, out, force, progress, decomp)?;
+    voxelize::ranks_done(decomp)?;
+    for w in &report.warnings {
+        progress.warn(w);
+    }
+    let seconds = t0.elapsed().as_secs_f64();
+    record_voxelize(
+        &staging,
+        &report,
+        input_meta,
+        &serde_json::to_value(&used).expect("options"),
+        seconds,
+    )?;
+    let run = staging.commit()?;
+    Ok((run, report))
+}
+
+/// On an MPI rank other than 0 while rank 0 runs [`voxelize_new_run_on`]: read the
+/// input and compute this rank's slab of each solid pass rank 0 asks for.
+pub fn serve_voxelize(
+    source: &Source<'_>,
+    progress: &dyn Progress,
+    decomp: &dyn Decomposition,
+) -> Result<(), crate::Error> {
+    let (shape, _, _) = load(source)?;
+    voxelize::serve_ranks(&shape, progress, decomp)
+}
+
+/// The shape of `source`, what the run records of it, and its name in messages.
+fn load(source: &Source<'_>) -> Result<(Shape, Value, String), crate::Error> {
+    Ok(match source {
         Source::File(path, iopts) => {
             let shape = input::load(path, iopts)?;
             let sha = if path.is_file() {
@@ -58,21 +104,7 @@ pub fn voxelize_new_run(
             json!({"path": name, "sha256": null, "format": "memory"}),
             (*name).to_owned(),
         ),
-    };
-    let (staging, report, used) = voxelize_probes(&shape, &name, opts, out, force, progress)?;
-    for w in &report.warnings {
-        progress.warn(w);
-    }
-    let seconds = t0.elapsed().as_secs_f64();
-    record_voxelize(
-        &staging,
-        &report,
-        input_meta,
-        &serde_json::to_value(&used).expect("options"),
-        seconds,
-    )?;
-    let run = staging.commit()?;
-    Ok((run, report))
+    })
 }
 
 /// Voxelize into a new staging run. For a molecule with a probe ladder (`--probe
@@ -86,6 +118,7 @@ fn voxelize_probes(
     out: &Path,
     force: bool,
     progress: &dyn Progress,
+    decomp: &dyn Decomposition,
 ) -> Result<(Staging, VoxelizeReport, VoxelizeOptions), crate::Error> {
     let probes: Vec<f64> = std::iter::once(opts.probe)
         .chain(opts.probe_ladder.iter().copied())
@@ -115,7 +148,7 @@ fn voxelize_probes(
             o.skip_handle_search = true;
         }
         let staging = Staging::begin(out, force)?;
-        let mut report = voxelize::voxelize(shape, name, &o, staging.run(), progress)?;
+        let mut report = voxelize::voxelize_on(shape, name, &o, staging.run(), progress, decomp)?;
         let whole = report.genus == 0 && report.components == 1;
         if probes.len() > 1 {
             trials.push(voxelize::ProbeTrial {

@@ -1,22 +1,24 @@
 //! Solid occupancy of a label volume input ("anything > 0 is inside"), block by block,
 //! shifted by the padding.
 
-use crate::grid::BlockStore;
+use crate::grid::{BlockStore, Decomposition};
 use crate::input::LabelVolume;
 use crate::parallel::map_bounded;
 use crate::progress::Progress;
 
-/// Write 1 where the volume is > 0 and 0 elsewhere (including the padding).
+/// Write 1 where the volume is > 0 and 0 elsewhere (including the padding), on the
+/// blocks `decomp` gives this process.
 pub fn volume_solid(
     volume: &LabelVolume,
     padding: u64,
     out: &dyn BlockStore<u8>,
     workers: usize,
     progress: &dyn Progress,
+    decomp: &dyn Decomposition,
 ) -> Result<(), crate::Error> {
     let spec = out.spec();
     let vs = volume.shape();
-    let blocks = spec.block_indices();
+    let blocks = decomp.owned(spec);
     progress.start("voxelize: reading the label volume", blocks.len() as u64);
     map_bounded(&blocks, workers, |&b| -> Result<(), crate::Error> {
         // A stop request (Ctrl-C) ends the pass at the next block.

@@ -32,6 +32,7 @@ mod options;
 mod prepare;
 mod probe_band;
 mod probes;
+mod ranks;
 mod repair;
 mod report;
 mod rounds;
@@ -52,11 +53,12 @@ pub use error::VoxelizeError;
 pub use grid_fit::{fit_bbox, fit_volume, DEFAULT_RESOLUTION, MAX_AXIS, MAX_VOXELS, MIN_PADDING};
 pub(crate) use options::scratch_grid;
 pub use probes::probe_summary;
+pub use ranks::{done as ranks_done, serve as serve_ranks};
 pub use report::{ProbeTrial, RepairRegion, TopologyRepair, VoxelizeReport};
 #[doc(hidden)]
 pub use rounds::compact_repair_above;
 pub use scanline::InsideRule;
-pub use stage::voxelize;
+pub use stage::{voxelize, voxelize_on};
 pub use standard::{standard_ball, StandardBall};
 pub use topology::summary as repair_summary;
 

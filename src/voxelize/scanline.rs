@@ -18,14 +18,14 @@
 
 use robust::{orient2d, Coord};
 
-use crate::grid::{BlockStore, GridSpec};
+use crate::grid::{BlockStore, Decomposition, GridSpec};
 use crate::input::TriMesh;
 use crate::math::Idx3;
 use crate::parallel::map_bounded;
 use crate::progress::Progress;
 
 /// How crossings along a row decide inside.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum InsideRule {
     /// Non-zero winding number (closed, consistently oriented surfaces).
     Winding,
@@ -84,7 +84,8 @@ fn edge_sign(a: Coord<f64>, b: Coord<f64>, q: Coord<f64>) -> (i8, f64) {
     (s, e)
 }
 
-/// Write the solid occupancy (1 inside, 0 outside) of every voxel of `spec` into `out`.
+/// Write the solid occupancy (1 inside, 0 outside) of every voxel of `spec` into `out`,
+/// on the block layers `decomp` gives this process.
 /// Returns the number of rows whose crossings did not sum to zero (a sign of a surface
 /// that is not closed at that row; 0 for a closed surface).
 pub fn mesh_solid(
@@ -93,6 +94,7 @@ pub fn mesh_solid(
     out: &dyn BlockStore<u8>,
     workers: usize,
     progress: &dyn Progress,
+    decomp: &dyn Decomposition,
 ) -> Result<u64, crate::Error> {
     let spec = out.spec().clone();
     let h = spec.spacing;
@@ -151,7 +153,9 @@ pub fn mesh_solid(
     }
     drop(fill);
 
-    let columns: Vec<(u64, u64)> = (0..nb[0])
+    // The columns of the block layers this process owns.
+    let columns: Vec<(u64, u64)> = decomp
+        .z_layers(decomp.part(), nb)
         .flat_map(|bz| (0..nb[1]).map(move |by| (bz, by)))
         .collect();
     progress.start("voxelize: inside test", columns.len() as u64);

@@ -31,7 +31,7 @@ use super::balls::Balls;
 pub use super::balls::SAMPLE;
 use super::probe_band::{rasterize, ProbeBand, Verdict, ATOM, GROWN, OUT};
 use super::solvent::{solvent_access, Access, Cavities, Free};
-use crate::grid::{BlockStore, GridError, GridSpec};
+use crate::grid::{BlockStore, Decomposition, GridError, GridSpec};
 use crate::input::molecule::Molecule;
 use crate::math::Idx3;
 use crate::progress::Progress;
@@ -49,9 +49,10 @@ pub enum MolSurface {
     Ses,
 }
 
-/// Write the solid of `mol` (1 inside, 0 outside) into `solid`, block by block. For the
-/// SES, returns the cavities of the probe-center space whose probes were left out (see
-/// [`super::solvent`]).
+/// Write the solid of `mol` (1 inside, 0 outside) into `solid`, block by block (the
+/// blocks `decomp` gives this process). For the SES, returns the cavities of the
+/// probe-center space whose probes were left out (see [`super::solvent`]), which every
+/// process finds alike.
 pub fn molecule_solid(
     mol: &Molecule,
     surface: MolSurface,
@@ -59,6 +60,7 @@ pub fn molecule_solid(
     solid: &dyn BlockStore<u8>,
     workers: usize,
     progress: &dyn Progress,
+    decomp: &dyn Decomposition,
 ) -> Result<Cavities, GridError> {
     let spec = solid.spec().clone();
     let centers: Vec<DVec3> = mol.atoms.iter().map(|a| a.pos).collect();
@@ -80,7 +82,7 @@ pub fn molecule_solid(
         let balls = Balls::without_samples(centers, radii, probe);
         (balls, (Vec::new(), Free::default()), Cavities::default())
     };
-    let blocks = spec.block_indices();
+    let blocks = decomp.owned(&spec);
     progress.start("voxelize: molecular solid", blocks.len() as u64);
     crate::parallel::map_bounded(&blocks, workers, |&b| {
         crate::progress::check_interrupt(progress)?;

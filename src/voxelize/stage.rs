@@ -5,10 +5,10 @@ use std::time::Instant;
 use super::center_ball::check_center_ball;
 use super::prepare::{self, Prepared};
 use super::{
-    center, classify, closing, components, cuts, from_volume, scanline, scratch_grid, spheres,
-    topology, CenterBall, InsideRule, VoxelizeError, VoxelizeOptions, VoxelizeReport,
+    center, classify, closing, components, cuts, scratch_grid, spheres, topology, CenterBall,
+    InsideRule, VoxelizeError, VoxelizeOptions, VoxelizeReport,
 };
-use crate::grid::Compression;
+use crate::grid::{Compression, Decomposition, Whole};
 use crate::input::Shape;
 use crate::math::Vec3;
 use crate::progress::Progress;
@@ -16,13 +16,27 @@ use crate::run::RunDir;
 
 /// Voxelize `shape` into the run directory `run` (which must be new): writes
 /// `labels/0` and returns the report. The caller records it in the run's attributes.
-#[allow(clippy::too_many_lines)] // the stage's passes in order; each pass is a call, the rest is their bookkeeping
 pub fn voxelize(
     shape: &Shape,
     source_name: &str,
     opts: &VoxelizeOptions,
     run: &RunDir,
     progress: &dyn Progress,
+) -> Result<VoxelizeReport, crate::Error> {
+    voxelize_on(shape, source_name, opts, run, progress, &Whole)
+}
+
+/// [`voxelize`] on rank 0 of the MPI ranks `decomp`: the other ranks compute their
+/// slabs of the solid pass ([`super::serve_ranks`]); the other passes run here alone.
+/// The caller ends the other ranks' service ([`super::ranks_done`]) when done.
+#[allow(clippy::too_many_lines)] // the stage's passes in order; each pass is a call, the rest is their bookkeeping
+pub fn voxelize_on(
+    shape: &Shape,
+    source_name: &str,
+    opts: &VoxelizeOptions,
+    run: &RunDir,
+    progress: &dyn Progress,
+    decomp: &dyn Decomposition,
 ) -> Result<VoxelizeReport, crate::Error> {
     let mut timings = Vec::new();
     let mut warnings = Vec::new();
@@ -127,27 +141,15 @@ pub fn voxelize(
     let solid = scratch_grid(&scratch_dir, &spec, in_memory, "solid.u8")?;
     let solid = &*solid;
 
-    // 1. Solid occupancy.
-    let mut probe_cavities = 0;
-    match (shape, rule) {
-        (Shape::Mesh(mesh), Some(rule)) => {
-            let unclosed = scanline::mesh_solid(mesh, rule, solid, w_solid, progress)?;
-            if unclosed > 0 {
-                warnings.push(format!(
-                    "{source_name}: {unclosed} rows of voxels crossed the surface an unbalanced number of times (coincident or self-intersecting faces); check the labels near them"
-                ));
-            }
-        }
-        (Shape::Volume(v), _) => {
-            from_volume::volume_solid(v, opts.padding, solid, w_solid, progress)?;
-        }
-        (Shape::Molecule(m), _) => {
-            let cav =
-                spheres::molecule_solid(m, opts.surface, opts.probe, solid, w_solid, progress)?;
-            probe_cavities = cav.count;
-        }
-        (Shape::Mesh(_), None) => unreachable!("meshes always get a rule"),
+    // 1. Solid occupancy (on MPI ranks, each rank's slab).
+    let counts = super::ranks::solid(shape, rule, opts, solid, w_solid, progress, decomp)?;
+    let unclosed = counts.unclosed;
+    if unclosed > 0 {
+        warnings.push(format!(
+            "{source_name}: {unclosed} rows of voxels crossed the surface an unbalanced number of times (coincident or self-intersecting faces); check the labels near them"
+        ));
     }
+    let probe_cavities = counts.probe_cavities;
     lap("solid", &mut t);
 
     // 1b. Closing (before the cavities: a closing can shut the mouth of a pocket).
