@@ -194,6 +194,14 @@ fn spot_on_two_and_three_ranks_is_the_same_bytes_as_one_process() {
         &[2, 3],
         &[("HARMAP_EXCHANGE_ROUND", "4096")],
     );
+    // Blocks of 32: four block layers, most of whose blocks hold no unknown, which
+    // the block passes of each rank skip as one process does.
+    same_bytes_on_ranks(
+        &spot,
+        &["--resolution", "96", "--chunk", "32"],
+        &[2, 3],
+        &[],
+    );
 }
 
 #[test]

@@ -264,6 +264,14 @@ pub trait Decomposition: Send + Sync + std::fmt::Debug {
         self.z_layers(self.part(), spec.blocks()).contains(&b[0])
     }
 
+    /// Whether this process is the only one to play its part, so that what it
+    /// records about the blocks it owns (which hold unknowns, which it visited) holds
+    /// for the whole run: true in one process and on MPI ranks, false for parts played
+    /// one after another in one process (the tests' [`Slabs`]).
+    fn one_part_per_process(&self) -> bool {
+        self.parts() == 1
+    }
+
     /// The blocks of `spec` this process owns, in block order.
     fn owned(&self, spec: &GridSpec) -> Vec<Idx3> {
         let nb = spec.blocks();

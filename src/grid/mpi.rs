@@ -348,6 +348,10 @@ impl Decomposition for MpiSlabs {
             .collect())
     }
 
+    fn one_part_per_process(&self) -> bool {
+        true
+    }
+
     fn bytes_sent(&self) -> u64 {
         self.sent.load(Ordering::Relaxed)
     }

@@ -230,16 +230,17 @@ impl Boxed {
 }
 
 impl Level {
-    /// Per block, whether it holds an unknown (built on first use, again after
-    /// [`super::flat::Cache::mask_replaced`]); `None` over several processes, where
-    /// passes visit every block: the record is per level, and a level visited in parts
-    /// (ranks, or the tests' slabs one after another) would have it, and the `synced`
-    /// state that goes with it, only for the first part's blocks.
+    /// Per block this process owns, whether it holds an unknown (built on first use,
+    /// again after [`super::flat::Cache::mask_replaced`]; the others read false, and
+    /// are never visited here). `None` for parts played one after another in one
+    /// process (the tests' slabs), where passes visit every block: the record is per
+    /// level, and the level would have it, and the `synced` state that goes with it,
+    /// only for the first part's blocks.
     pub(super) fn occupied(
         &self,
         blocks: &super::blocks::BlockLoop<'_>,
     ) -> Result<Option<&[bool]>, GridError> {
-        if blocks.decomp.parts() != 1 {
+        if !blocks.decomp.one_part_per_process() {
             return Ok(None);
         }
         self.flat
