@@ -97,7 +97,7 @@ struct Patches {
 }
 
 /// A run of points of a crossing circle that join one patch of one of its atoms.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 struct Run {
     /// The crossing: atoms `lo < hi`.
     lo: u32,
@@ -320,11 +320,25 @@ pub fn solvent_access(
     workers: usize,
     progress: &dyn Progress,
 ) -> Result<(Vec<Access>, Free, Cavities), crate::grid::GridError> {
+    solvent_access_on(balls, workers, progress, &crate::grid::Whole)
+}
+
+/// [`solvent_access`] with the atoms' own pass (the heavy part) split over the
+/// processes of `decomp`: each takes a contiguous share of the atoms, and every process
+/// gets every atom's result, so all find the same.
+pub fn solvent_access_on(
+    balls: &Balls,
+    workers: usize,
+    progress: &dyn Progress,
+    decomp: &dyn crate::grid::Decomposition,
+) -> Result<(Vec<Access>, Free, Cavities), crate::grid::GridError> {
     const CHUNK: usize = 64;
     let n = balls.centers.len();
     let chunks: Vec<usize> = (0..n.div_ceil(CHUNK)).collect();
+    let (parts, me) = (decomp.parts(), decomp.part());
+    let share = |p: usize| p * chunks.len() / parts..(p + 1) * chunks.len() / parts;
     progress.start("voxelize: probe space", n as u64);
-    let per_chunk = crate::parallel::map_bounded(&chunks, workers, |&ch| {
+    let mine = crate::parallel::map_bounded(&chunks[share(me)], workers, |&ch| {
         crate::progress::check_interrupt(progress)?;
         let mut others = Vec::new();
         let out: Vec<_> = (ch * CHUNK..(ch * CHUNK + CHUNK).min(n))
@@ -334,6 +348,16 @@ pub fn solvent_access(
         Ok::<_, crate::grid::GridError>(out)
     })?;
     progress.finish();
+    let per_chunk: Vec<Vec<AtomPass>> = if parts == 1 {
+        mine
+    } else {
+        let bytes = encode(mine.iter().flatten());
+        let all = decomp.all_gather_bytes(bytes)?;
+        all.iter()
+            .enumerate()
+            .map(|(p, b)| decode(b, p))
+            .collect::<Result<_, _>>()?
+    };
 
     // Global patch ids.
     let mut base = vec![0u32; n + 1];
@@ -415,6 +439,86 @@ pub fn solvent_access(
     Ok((access, free, cavities))
 }
 
+/// The atoms' passes as bytes, for the other processes ([`decode`]): per atom the
+/// tops, the runs and the free samples, each a count (u32) and the items, little-endian.
+fn encode<'a>(atoms: impl Iterator<Item = &'a AtomPass>) -> Vec<u8> {
+    let mut out = Vec::new();
+    let len = |out: &mut Vec<u8>, n: usize| {
+        out.extend_from_slice(
+            &u32::try_from(n)
+                .expect("fewer than 2^32 items")
+                .to_le_bytes(),
+        );
+    };
+    for (tops, runs, bits) in atoms {
+        len(&mut out, tops.len());
+        for (x, nx) in tops {
+            out.extend_from_slice(&x.to_le_bytes());
+            out.extend_from_slice(&nx.to_le_bytes());
+        }
+        len(&mut out, runs.len());
+        for r in runs {
+            for v in [r.lo, r.hi, u32::from(r.at_hi), r.from, r.to, r.patch] {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        len(&mut out, bits.len());
+        for b in bits {
+            out.extend_from_slice(&b.to_le_bytes());
+        }
+    }
+    out
+}
+
+/// The atoms' passes process `part` sent ([`encode`]), one entry per atom.
+fn decode(bytes: &[u8], part: usize) -> Result<Vec<AtomPass>, crate::grid::GridError> {
+    struct Reader<'a>(&'a [u8]);
+    impl Reader<'_> {
+        fn take<const N: usize>(&mut self) -> Option<[u8; N]> {
+            let (head, tail) = self.0.split_at_checked(N)?;
+            self.0 = tail;
+            head.try_into().ok()
+        }
+        fn u32(&mut self) -> Option<u32> {
+            self.take().map(u32::from_le_bytes)
+        }
+        fn f64(&mut self) -> Option<f64> {
+            self.take().map(f64::from_le_bytes)
+        }
+        fn atom(&mut self) -> Option<AtomPass> {
+            let tops = (0..self.u32()?)
+                .map(|_| Some((self.f64()?, self.f64()?)))
+                .collect::<Option<Vec<_>>>()?;
+            let runs = (0..self.u32()?)
+                .map(|_| {
+                    Some(Run {
+                        lo: self.u32()?,
+                        hi: self.u32()?,
+                        at_hi: self.u32()? != 0,
+                        from: self.u32()?,
+                        to: self.u32()?,
+                        patch: self.u32()?,
+                    })
+                })
+                .collect::<Option<Vec<_>>>()?;
+            let bits = (0..self.u32()?)
+                .map(|_| self.take().map(u64::from_le_bytes))
+                .collect::<Option<Vec<_>>>()?;
+            Some((tops, runs, bits))
+        }
+    }
+    let mut r = Reader(bytes);
+    let mut atoms = Vec::new();
+    while !r.0.is_empty() {
+        atoms.push(r.atom().ok_or_else(|| {
+            crate::grid::GridError::Ranks(format!(
+                "rank {part} sent a probe-space pass this rank cannot read (are all ranks the same harmap?)"
+            ))
+        })?);
+    }
+    Ok(atoms)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -452,6 +556,24 @@ mod tests {
         let (access, _, cav) = solvent_access(&open, 2, &Silent).unwrap();
         assert_eq!(cav, Cavities::default());
         assert!(access.iter().all(|a| *a == Access::All));
+    }
+
+    /// What a rank sends of its atoms' passes reads back the same, and a cut message
+    /// is an error (not a panic, not a shorter list).
+    #[test]
+    fn atom_passes_go_through_bytes_unchanged() {
+        let balls = shell(40, 6.0, 2.5);
+        let mut others = Vec::new();
+        let atoms: Vec<AtomPass> = (0..balls.centers.len())
+            .map(|i| atom_pass(&balls, i, &mut others))
+            .collect();
+        assert!(atoms
+            .iter()
+            .any(|(t, r, b)| !t.is_empty() && !r.is_empty() && !b.is_empty()));
+        let bytes = encode(atoms.iter());
+        assert_eq!(decode(&bytes, 1).unwrap(), atoms);
+        assert!(decode(&bytes[..bytes.len() - 3], 1).is_err());
+        assert!(decode(&[], 1).unwrap().is_empty());
     }
 
     #[test]

@@ -30,7 +30,7 @@ use serde::{Deserialize, Serialize};
 use super::balls::Balls;
 pub use super::balls::SAMPLE;
 use super::probe_band::{rasterize, ProbeBand, Verdict, ATOM, GROWN, OUT};
-use super::solvent::{solvent_access, Access, Cavities, Free};
+use super::solvent::{solvent_access_on, Access, Cavities, Free};
 use crate::grid::{BlockStore, Decomposition, GridError, GridSpec};
 use crate::input::molecule::Molecule;
 use crate::math::Idx3;
@@ -76,7 +76,7 @@ pub fn molecule_solid(
             probe,
             super::balls::sample_for(spec.spacing),
         );
-        let (access, free, cavities) = solvent_access(&balls, workers, progress)?;
+        let (access, free, cavities) = solvent_access_on(&balls, workers, progress, decomp)?;
         (balls, (access, free), cavities)
     } else {
         let balls = Balls::without_samples(centers, radii, probe);
@@ -246,7 +246,7 @@ mod tests {
             probe,
             super::super::balls::sample_for(spacing),
         );
-        let (access, free, _) = solvent_access(&balls, 2, &Silent).unwrap();
+        let (access, free, _) = solvent_access_on(&balls, 2, &Silent, &crate::grid::Whole).unwrap();
         let af = (access, free);
         let (mut solid, mut sas) = (0, 0);
         for b in spec.block_indices() {
