@@ -375,14 +375,11 @@ impl<'d> Hierarchy<'d> {
             } else {
                 f.pre(sweeps, measure, &coarse)
             };
+            // Nothing measured, nothing to add up (and no messages on ranks).
             if !measure {
                 return Ok(PassStats::default());
             }
-            let st = self.plane_numbers(k, &st)?;
-            return Ok(PassStats {
-                max_change: 0.0,
-                ..st
-            });
+            return self.plane_numbers(k, &st);
         }
         let pass = Smooth {
             measure: if measure {

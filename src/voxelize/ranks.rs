@@ -86,13 +86,7 @@ pub fn serve(
     decomp: &dyn Decomposition,
 ) -> Result<(), crate::Error> {
     loop {
-        let all = decomp.all_gather_bytes(Vec::new())?;
-        let request: Request = serde_json::from_slice(&all[0]).map_err(|e| {
-            GridError::Ranks(format!(
-                "rank 0 sent a voxelization request this rank cannot read ({e}); are all ranks the same harmap?"
-            ))
-        })?;
-        match request {
+        match receive(decomp)? {
             Request::Done => return Ok(()),
             Request::Solid {
                 spec,
@@ -115,6 +109,17 @@ fn send(decomp: &dyn Decomposition, request: &Request) -> Result<(), crate::Erro
     let bytes = serde_json::to_vec(request).expect("a request serializes");
     decomp.all_gather_bytes(bytes)?;
     Ok(())
+}
+
+/// The request rank 0 sent ([`send`]).
+fn receive(decomp: &dyn Decomposition) -> Result<Request, crate::Error> {
+    let all = decomp.all_gather_bytes(Vec::new())?;
+    serde_json::from_slice(&all[0]).map_err(|e| {
+        GridError::Ranks(format!(
+            "rank 0 sent a voxelization request this rank cannot read ({e}); are all ranks the same harmap?"
+        ))
+        .into()
+    })
 }
 
 /// The solid pass on the blocks `decomp` gives this process.
