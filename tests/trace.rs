@@ -202,7 +202,11 @@ fn the_cactus_maps_without_flips_on_levels() {
         return;
     };
     let flipped = |level_step: f64| {
-        let mut o = TraceOptions::for_seeds(SeedKind::Surface);
+        // The streamlines' own map, not untangled.
+        let mut o = TraceOptions {
+            untangle: false,
+            ..TraceOptions::for_seeds(SeedKind::Surface)
+        };
         o.rk.level_step = level_step;
         let (rep, _) = run_trace(&out, &o);
         assert_eq!(rep.stops["reached"], rep.seeds, "{:?}", rep.stops);
@@ -281,22 +285,23 @@ fn untangling_the_starfish_keeps_its_arrivals_and_moves_only_the_seeds_it_counts
     let dir = tempfile::tempdir().unwrap();
     let run = solved_starfish(dir.path());
     let mesh = harmap::input::starfish::starfish(64, 240);
-    let plain = TraceOptions::for_seeds(SeedKind::Surface);
+    let on = TraceOptions::for_seeds(SeedKind::Surface);
+    assert!(on.untangle, "surface seeds untangle by default");
+    let plain = TraceOptions {
+        untangle: false,
+        ..on.clone()
+    };
     let (rep_a, a) = run_trace(&run, &plain);
     assert!(rep_a.untangle.is_none());
     assert!(
         a.arrival_theta.is_empty(),
-        "arrival columns only with --untangle"
+        "arrival columns only when untangled"
     );
     let flips_a = rep_a.surface.as_ref().unwrap().flipped;
     assert!(
         flips_a > 50,
         "{flips_a}: the case no longer shows the problem"
     );
-    let on = TraceOptions {
-        untangle: true,
-        ..plain.clone()
-    };
     let (rep_b, b) = run_trace(&run, &on);
     let u = rep_b.untangle.as_ref().expect("the untangling's report");
     let m = rep_b.surface.as_ref().unwrap();
@@ -319,34 +324,37 @@ fn untangling_the_starfish_keeps_its_arrivals_and_moves_only_the_seeds_it_counts
     assert_eq!(flips_in_table(&b, &mesh.triangles), m.flipped);
     assert_eq!(flips_in_table(&a, &mesh.triangles), flips_a);
     assert_eq!(m.flipped, u.unresolved);
-    // A third of the flips go at least, by moves of a fraction of a degree in the
-    // median.
-    assert!(
-        m.flipped * 3 < flips_a * 2,
-        "{} of {flips_a} left",
-        m.flipped
-    );
+    // Every flip goes: the poles' fans of slivers take re-embedded regions. The moves
+    // are a small share of the seeds, of a fraction of a degree in the median
+    // (measured: 848 of 15,122 seeds, median 0.34 degrees).
+    assert_eq!(m.flipped, 0, "{u:?}");
+    assert!(u.regions > 0, "{u:?}");
+    assert!(u.seeds_moved * 5 < a.theta.len() as u64, "{u:?}");
     assert!(u.median_move_deg < 1.0, "{u:?}");
     // Collisions measure the arrivals' squeeze, with or without untangling.
     assert_eq!(rep_b.collisions, rep_a.collisions);
-    // Only for a whole surface: with boundary seeds or a sample it is refused, and the
-    // table is left as it was.
-    for o in [
-        TraceOptions {
+    // Only for a whole surface: with a sample or boundary seeds the arrivals are the
+    // map, and the command refuses --untangle there, leaving the table as it was.
+    let (rep_s, s) = run_trace(
+        &run,
+        &TraceOptions {
             sample: Some(100),
             ..on.clone()
         },
-        TraceOptions {
-            untangle: true,
-            ..TraceOptions::for_seeds(SeedKind::Boundary)
-        },
-    ] {
-        let r = RunDir::open(&run).unwrap();
-        let e = trace(&r, &o, &Silent).unwrap_err().to_string();
-        assert!(e.contains("--untangle"), "{e}");
-        assert_eq!(bits(&read_seeds(&r).unwrap().theta), bits(&b.theta));
+    );
+    assert!(rep_s.untangle.is_none() && s.arrival_theta.is_empty());
+    let (_, b) = run_trace(&run, &on);
+    let r = run.to_str().unwrap();
+    for extra in [&["--sample", "100"][..], &["--seeds", "boundary"][..]] {
+        let mut args = vec!["trace", r, "--untangle"];
+        args.extend_from_slice(extra);
+        let o = harmap(&args);
+        assert_eq!(o.status.code(), Some(2), "{extra:?}");
+        assert!(String::from_utf8_lossy(&o.stderr).contains("--untangle"));
+        let t = read_seeds(&RunDir::open(&run).unwrap()).unwrap();
+        assert_eq!(bits(&t.theta), bits(&b.theta));
     }
-    // Recorded: a run traced again without the flag is traced plainly again.
+    // Recorded: a run traced again without it is traced plainly again.
     let (rep_c, c) = run_trace(&run, &plain);
     assert!(rep_c.untangle.is_none() && c.arrival_theta.is_empty());
     assert_eq!(bits(&c.theta), bits(&a.theta));
@@ -386,8 +394,17 @@ fn a_sphere_maps_onto_the_sphere_without_flips_and_exports_whole_files() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("harmap solve"));
     ok(&harmap(&["-q", "solve", r]));
-    ok(&harmap(&["-q", "trace", r, "--seeds", "surface"]));
+    // The streamlines' own map, not untangled.
+    ok(&harmap(&[
+        "-q",
+        "trace",
+        r,
+        "--seeds",
+        "surface",
+        "--no-untangle",
+    ]));
     let attrs = RunDir::open(&run).unwrap().attrs().unwrap();
+    assert!(attrs["stages"]["trace"]["result"]["untangle"].is_null());
     let m = &attrs["stages"]["trace"]["result"]["surface"];
     assert_eq!(m["flipped"], 0, "{m}");
     assert_eq!(m["measured"].as_u64().unwrap(), mesh.triangles.len() as u64);
@@ -570,7 +587,10 @@ fn a_sphere_maps_onto_the_sphere_without_flips_and_exports_whole_files() {
 fn surface_seeds_of_a_label_run_come_from_its_voxels() {
     let dir = tempfile::tempdir().unwrap();
     let run = solved_ball(dir.path(), 40, 16);
-    let o = TraceOptions::for_seeds(SeedKind::Surface);
+    let o = TraceOptions {
+        untangle: false,
+        ..TraceOptions::for_seeds(SeedKind::Surface)
+    };
     let (rep, t) = run_trace(&run, &o);
     assert_eq!(rep.boundary, "smoothed voxel solid");
     assert_eq!(rep.seed_surface, Some("surface nets of the labels"));
@@ -646,7 +666,11 @@ fn spot_maps_without_flips_on_the_mesh_boundary() {
     let Some(out) = crate::common::solved_mesh(dir.path(), "spot.obj", 96) else {
         return;
     };
-    let opts = TraceOptions::for_seeds(SeedKind::Surface);
+    // The streamlines' own map, not untangled.
+    let opts = TraceOptions {
+        untangle: false,
+        ..TraceOptions::for_seeds(SeedKind::Surface)
+    };
     let (rep, _) = run_trace(&out, &opts);
     assert_eq!(rep.boundary, "input mesh");
     assert_eq!(rep.seed_surface, Some("input mesh"));
@@ -787,10 +811,11 @@ unsafe impl std::alloc::GlobalAlloc for Heap {
 static HEAP: Heap = Heap;
 
 /// The trace's heap, measured in a process of its own (this test binary, running only
-/// [`trace_heap_child`]): a ball's ~12,000 surface seeds on tiles of 16 under a budget
-/// of 30 MiB, which leaves 6 MiB for the grid work. The whole trace (tiles, chunks,
-/// lines, seeds, their surface, the seed table and the measures over the triangles and
-/// sphere points at the end) stays within those 6 MiB. Before the end phase was bounded
+/// [`trace_heap_child`]): a ball's ~15,000 surface seeds on tiles of 16 under a budget
+/// of 36 MiB, of which the trace reserves the untangling's index at most (not used: the
+/// ball has no flips). The whole trace (tiles, chunks, lines, seeds, their surface, the
+/// seed table and the measures over the triangles and sphere points at the end) stays
+/// within the work the budget leaves. Before the end phase was bounded
 /// its measures held about 9 MiB here, beside nothing counted.
 #[test]
 fn the_trace_and_its_end_phase_stay_within_a_small_budget() {
@@ -830,7 +855,7 @@ fn trace_heap_child() {
     let r = RunDir::open(Path::new(&run)).unwrap();
     let opts = TraceOptions {
         tile: Some(16),
-        mem: MemBudget(35 << 20),
+        mem: MemBudget(36 << 20),
         ..TraceOptions::for_seeds(SeedKind::Surface)
     };
     let pool = rayon::ThreadPoolBuilder::new()

@@ -554,16 +554,17 @@ def trace(
     h_max=2.0,
     max_steps=20000,
     level_step=None,
-    untangle=False,
+    untangle=True,
     progress=True,
 ):
     """Trace streamlines from the seeds to the center (``harmap trace``); returns the
     trace's report. ``seeds``: "surface" (the input mesh's vertices, or the labels'
     surface nets; the command's default, whose triangles give the flip counts) or
     "boundary" (every boundary voxel). ``atol`` and ``level_step`` default by the
-    seeds, as the command's. ``untangle=True`` untangles a whole surface's sphere map
-    (``--untangle``: theta and psi become the untangled map, arrival_theta and
-    arrival_psi keep the arrivals). Ctrl-C stops it within about a second
+    seeds, as the command's. ``untangle`` (on by default, as the command's) untangles
+    a whole surface's sphere map: theta and psi become the untangled map, arrival_theta
+    and arrival_psi keep the arrivals; ``untangle=False`` keeps the arrivals as the map
+    (``--no-untangle``). No effect with boundary seeds or a sample. Ctrl-C stops it within about a second
     (KeyboardInterrupt)."""
     with _Bars(progress) as bars:
         r = _harmap.trace(
@@ -691,7 +692,7 @@ def run(
     h_max=2.0,
     max_steps=20000,
     level_step=None,
-    untangle=False,
+    untangle=True,
     trace_rtol=0.0,
     exact=False,
     progress=True,

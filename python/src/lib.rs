@@ -547,7 +547,7 @@ fn trace_options(
 #[pyfunction]
 #[pyo3(signature = (run, *, seeds="surface", sample=None, stop_radius=None, tile=None,
     mem="1GiB", atol=None, rtol=0.0, h_min=1e-6, h_max=2.0, max_steps=20_000,
-    level_step=None, untangle=false, progress=None))]
+    level_step=None, untangle=true, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn trace(
     py: Python<'_>,
@@ -638,7 +638,7 @@ fn map(
     radius=None, method="multigrid", cycle="fmg", rtol=1e-6, tol=0.0, eps=1e-4, max_iter=1000,
     omega=None, checkpoint_every=300.0, seeds="surface", sample=None, stop_radius=None,
     tile=None, atol=None, h_min=1e-6, h_max=2.0, max_steps=20_000, level_step=None,
-    untangle=false, trace_rtol=0.0, exact=false, atlas=None, report=None, progress=None))]
+    untangle=true, trace_rtol=0.0, exact=false, atlas=None, report=None, progress=None))]
 #[allow(clippy::too_many_arguments, clippy::fn_params_excessive_bools)]
 fn run(
     py: Python<'_>,

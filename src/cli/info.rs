@@ -305,12 +305,13 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
         if let Some(u) = v.get("untangle").filter(|u| !u.is_null()) {
             writeln!(
                 out,
-                "          untangled (--untangle) from {} flipped and {} degenerate as the streamlines arrived: {} seeds moved, median {:.3} and at most {:.2} degrees; {} left",
+                "          untangled from {} flipped and {} degenerate as the streamlines arrived: {} seeds moved, median {:.3} and at most {:.2} degrees ({} regions re-embedded); {} left",
                 u["flipped_arrivals"],
                 u["degenerate_arrivals"],
                 u["seeds_moved"],
                 u["median_move_deg"].as_f64().unwrap_or(f64::NAN),
                 u["max_move_deg"].as_f64().unwrap_or(f64::NAN),
+                u["regions"].as_u64().unwrap_or(0),
                 u["unresolved"],
             )?;
         }

@@ -84,6 +84,7 @@ pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
         PathBuf::from(format!("{stem}.harmap"))
     });
     let (mut vopts, iopts): (_, InputOptions) = a.voxelize.options()?;
+    a.trace.check()?;
     if a.input.is_none() && vopts.center.is_none() {
         // The starfish is symmetric about the origin: its middle is the natural center
         // (the deepest voxel lies off-middle, toward an arm's root).

@@ -104,14 +104,21 @@ pub struct TraceArgs {
     /// the steps.
     #[arg(long, value_name = "LN_U", help_heading = "Integrator")]
     pub level_step: Option<f64>,
-    /// Surface seeds (without --sample): untangle the sphere map where its flat
-    /// triangles turn over, by moving each vertex of a flipped triangle toward the point
-    /// that maximizes the smallest area of its triangles (part of the way), and its
-    /// neighbours within 8 rings when that stalls. theta and psi are then the
-    /// untangled map, the streamlines' arrivals are kept as arrival_theta and
-    /// arrival_psi, and the report says how many seeds moved and how far (blub at
-    /// 128: 445 flips to 55, median move 0.02 degrees). Flips that need whole regions
-    /// moved stay, counted (docs/trace.md, Untangling).
+    /// Keep the streamlines' arrivals as the sphere map, flips and all. By default the
+    /// sphere map of surface seeds (without --sample) is untangled where its flat
+    /// triangles turn over: the vertices of flipped triangles move toward the point
+    /// that maximizes the smallest area of their triangles, and where that is not
+    /// enough a region around them is re-embedded inside its fixed boundary (mean value
+    /// weights, so vertices whose rings are laid down well stay), then every moved
+    /// vertex goes back toward its arrival as far as no triangle turns over. theta and
+    /// psi are then the untangled map, the arrivals are kept as arrival_theta and
+    /// arrival_psi, and the report says how many seeds moved and how far (blub at 128:
+    /// 445 flips to 0, 469 of 7,106 seeds moved, median 0.006 degrees; docs/trace.md,
+    /// Untangling).
+    #[arg(long, conflicts_with = "untangle")]
+    pub no_untangle: bool,
+    /// Untangle the sphere map (the default for surface seeds without --sample); an
+    /// error with boundary seeds or --sample, which give no whole surface.
     #[arg(long)]
     pub untangle: bool,
 }
@@ -147,6 +154,22 @@ pub enum SeedArg {
 }
 
 impl TraceArgs {
+    /// Refuse `--untangle` where there is no whole surface to untangle.
+    ///
+    /// # Errors
+    /// [`harmap::trace::TraceError::Options`] with boundary seeds or `--sample`.
+    pub fn check(&self) -> Result<(), harmap::Error> {
+        if self.untangle && (self.seeds.kind() != SeedKind::Surface || self.sample.is_some()) {
+            return Err(harmap::trace::TraceError::Options(
+                "--untangle works on the whole surface's sphere map: use it with surface seeds \
+                 (the default) and without --sample"
+                    .into(),
+            )
+            .into());
+        }
+        Ok(())
+    }
+
     /// The library options, with the integrator's relative tolerance `rtol` and the
     /// memory budget `mem`.
     #[must_use]
@@ -158,7 +181,7 @@ impl TraceArgs {
             sample: self.sample,
             stop_radius: self.stop_radius,
             tile: self.tile,
-            untangle: self.untangle,
+            untangle: !self.no_untangle && seeds == SeedKind::Surface && self.sample.is_none(),
             mem,
             rk: Rk45 {
                 atol: self.atol.unwrap_or(default.atol),
@@ -217,6 +240,7 @@ pub fn untangled(u: &harmap::trace::untangle::UntangleReport) -> String {
 
 /// Run `harmap trace`.
 pub fn run(a: &Args, g: &Global) -> anyhow::Result<()> {
+    a.opts.check()?;
     let run = RunDir::open(&a.run).map_err(harmap::Error::from)?;
     let opts = a.opts.options(a.rtol, a.mem);
     let attrs = run.attrs().map_err(harmap::Error::from)?;

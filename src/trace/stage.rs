@@ -34,9 +34,10 @@ pub struct TraceOptions {
     pub rk: Rk45,
     /// Tile edge in voxels (default: the chunk edge of phi). Results do not depend on it.
     pub tile: Option<u64>,
-    /// For a whole surface's seeds: untangle the sphere map ([`untangle`]), keeping the
-    /// arrivals beside it. Recorded only when on, so runs traced before it keep their
-    /// options.
+    /// Untangle the sphere map ([`untangle`]) when the seeds are a whole surface (surface
+    /// seeds without a sample; no effect otherwise), keeping the arrivals beside it. On
+    /// in [`TraceOptions::for_seeds`] of surface seeds, the commands' default. Recorded
+    /// only when on, so runs traced before it keep their options.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub untangle: bool,
     /// Memory budget.
@@ -68,12 +69,14 @@ impl Default for TraceOptions {
 }
 
 impl TraceOptions {
-    /// The default options for `seeds` (the integrator of [`Rk45::for_seeds`]).
+    /// The default options for `seeds` (the integrator of [`Rk45::for_seeds`], and
+    /// untangling for surface seeds).
     #[must_use]
     pub fn for_seeds(seeds: SeedKind) -> Self {
         Self {
             seeds,
             rk: Rk45::for_seeds(seeds),
+            untangle: seeds == SeedKind::Surface,
             ..Self::default()
         }
     }
@@ -581,15 +584,6 @@ pub fn trace(
     progress: &dyn Progress,
 ) -> Result<TraceReport, crate::Error> {
     let t0 = Instant::now();
-    // Untangling needs every triangle of the surface: refused before anything is
-    // traced rather than silently skipped.
-    if opts.untangle && (opts.seeds != SeedKind::Surface || opts.sample.is_some()) {
-        return Err(options(
-            "--untangle works on the whole surface's sphere map: use it with surface seeds \
-             (the default) and without --sample"
-                .into(),
-        ));
-    }
     let _lock = run.lock()?;
     let _staged = run.staged_images(&["seeds"]);
     let spec: GridSpec = run.grid()?;
@@ -634,8 +628,8 @@ pub fn trace(
     let mut sphere: Vec<Option<DVec3>> = (0..n).map(|i| table.sphere(i)).collect();
     // The collisions measure the squeeze of the streamlines' own arrivals.
     let collisions = metrics::collisions(&tr.seeds, &sphere, 0.05, 5.0);
-    // With --untangle, a whole surface's sphere map is untangled where its flat
-    // triangles turn over; the arrivals are kept beside it.
+    // A whole surface's sphere map is untangled where its flat triangles turn over
+    // (unless --no-untangle); the arrivals are kept beside it.
     let whole_surface = tr.surface.as_ref().filter(|_| opts.sample.is_none());
     let untangled = whole_surface.filter(|_| opts.untangle).map(|m| {
         let mut r = untangle::untangle(&m.triangles, &mut sphere);

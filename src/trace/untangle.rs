@@ -28,9 +28,25 @@
 //! - When a sweep leaves as many bad triangles as before, the neighbours within one
 //!   more ring move too, to make room (toward their own best point, where that raises
 //!   their smallest area), up to [`MAX_RINGS`] rings.
+//! - Where local moves stall (a region the streamlines laid down twice, as the two
+//!   sides of a thin sheet; a fan of slivers around a pole), the bad triangles are
+//!   grouped into tangles, and each tangle's region (the stars of the vertices within
+//!   a few rings of it, from 0 up to [`MAX_REGION_RINGS`], smallest first) is
+//!   re-embedded inside its fixed boundary: each inner vertex at a weighted mean of its
+//!   neighbours on the gnomonic projection (Tutte 1963; Floater's mean value weights
+//!   from the map as it is first, so that vertices whose rings are laid down well stay
+//!   put, then inverse edge lengths, then uniform). The first region whose embedding
+//!   leaves fewer bad triangles than it holds is kept, and local moves run again, for
+//!   up to [`MAX_REGION_ROUNDS`] rounds ([`Reembedder`]).
+//! - Last, every moved vertex goes back toward its arrival point, all the way or by
+//!   halves of the way down to a 32nd, wherever none of its positive triangles turns
+//!   bad: the untangled map keeps the streamlines' map wherever it need not leave it.
 //! - Vertices that did not reach the center are never given a point, and a vertex with
-//!   one among its neighbours is held (its ring is open), as is a vertex of more than
-//!   [`MAX_VALENCE`] triangles.
+//!   one among its neighbours is held in the local moves (its ring is open), as is a
+//!   vertex of more than [`MAX_VALENCE`] triangles.
+//! - Not every tangle clears: a surface that is not one sphere (two_spheres' two
+//!   overlapping components, which no one-to-one map of one sphere can take) keeps
+//!   its bad triangles, counted.
 //!
 //! Deterministic: vertices in index order, sequential sweeps, no parallel sums.
 //!
@@ -38,18 +54,23 @@
 //! vertex-to-triangle index ([`UNTANGLE_TRIANGLE_BYTES`] a triangle and
 //! [`UNTANGLE_VERTEX_BYTES`] a vertex), and work in proportion to the tangles.
 
+use std::collections::{HashMap, HashSet};
+
 use glam::{DVec2, DVec3};
 use serde::Serialize;
 
 use super::metrics::orientation;
 
 /// Bytes [`untangle`] holds a triangle at most: its three entries of the vertex-to-
-/// triangle index (12) and its stamp (4).
-pub const UNTANGLE_TRIANGLE_BYTES: u64 = 16;
+/// triangle index (12), its stamps (8), and in a re-embedded region (a quarter of the
+/// surface at most) its entry (4) and three half-edges in a hash map (about 32 each).
+pub const UNTANGLE_TRIANGLE_BYTES: u64 = 48;
 
-/// Bytes [`untangle`] holds a vertex at most: its offset in the index (4), its stamp (4)
-/// and its ring (4).
-pub const UNTANGLE_VERTEX_BYTES: u64 = 12;
+/// Bytes [`untangle`] holds a vertex at most: its offset in the index (4), its stamps,
+/// ring and unknown (16), its first point when it moves (32), and in a re-embedded
+/// region (a quarter of the surface at most) its unknown's vectors, neighbours and
+/// boundary entry (about 160).
+pub const UNTANGLE_VERTEX_BYTES: u64 = 96;
 
 /// Rings of neighbours around the bad triangles that may move to make room, at most.
 pub const MAX_RINGS: u32 = 8;
@@ -60,8 +81,15 @@ pub const MAX_RINGS: u32 = 8;
 /// 240 triangles) has a ring that spans tens of degrees, across which no move is small.
 pub const MAX_VALENCE: usize = 16;
 
-/// Sweeps over the movable vertices, at most.
+/// Sweeps over the movable vertices in a round of local moves, at most.
 const MAX_SWEEPS: u32 = 200;
+
+/// Rounds of re-embedding (each followed by local moves), at most.
+const MAX_REGION_ROUNDS: u32 = 32;
+
+/// Sweeps that move a re-embedded region's vertices back toward their points before
+/// it, at most.
+const RETURN_SWEEPS: u32 = 200;
 
 /// What [`untangle`] changed.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
@@ -84,6 +112,13 @@ pub struct UntangleReport {
     /// new point to a neighbour's): near 1 or below, the seeds moved within their own
     /// neighbourhood on the sphere.
     pub max_move_of_ring: f64,
+    /// Regions of the surface re-embedded whole (a Tutte embedding on the sphere inside
+    /// their fixed boundary) where the local moves left bad triangles.
+    pub regions: u64,
+    /// Rings around its tangle the largest re-embedded region took.
+    pub region_rings: u64,
+    /// Seeds inside re-embedded regions.
+    pub region_seeds: u64,
     /// Bad triangles left.
     pub unresolved: u64,
     /// The seeds whose sphere point moved, in index order (not recorded).
@@ -122,37 +157,33 @@ pub fn untangle(triangles: &[[u32; 3]], sphere: &mut [Option<DVec3>]) -> Untangl
     }
     let mut u = Untangler::new(triangles, sphere.len());
     let mut moved: Vec<(u32, DVec3)> = Vec::new();
-    let mut rings = 0u32;
     let mut ring_of = vec![0u32; sphere.len()];
-    while !bad.is_empty() && report.sweeps < u64::from(MAX_SWEEPS) {
-        report.sweeps += 1;
-        let before = bad.len();
-        let mut touched: Vec<u32> = Vec::new();
-        for v in u.near(&bad, rings, &mut ring_of) {
-            let ring = ring_of[v as usize];
-            if let Some(p) = u.improve(sphere, v, ring > 0) {
-                moved.push((v, sphere[v as usize].expect("reached")));
-                sphere[v as usize] = Some(p);
-                touched.extend_from_slice(u.around(v));
-                report.max_rings = report.max_rings.max(u64::from(ring));
-            }
+    for round in 0..=MAX_REGION_ROUNDS {
+        local(
+            &mut u,
+            sphere,
+            &mut bad,
+            &mut moved,
+            &mut ring_of,
+            &mut report,
+        );
+        if bad.is_empty() || round == MAX_REGION_ROUNDS {
+            break;
         }
-        // Only the moved vertices' triangles can have changed.
-        bad.extend(touched);
-        bad.sort_unstable();
-        bad.dedup();
-        bad.retain(|&t| orient(sphere, triangles[t as usize]).is_some_and(|o| o <= 0.0));
+        let before = bad.len();
+        bad = Reembedder::new(&u).run(sphere, bad, &mut moved, &mut report);
         if bad.len() >= before {
-            if rings == MAX_RINGS {
-                break;
-            }
-            rings += 1;
+            break;
         }
     }
-    report.unresolved = bad.len() as u64;
     // The first point recorded for a vertex is its arrival point.
     moved.sort_by_key(|&(v, _)| v);
     moved.dedup_by_key(|&mut (v, _)| v);
+    if report.regions > 0 {
+        Reembedder::new(&u).go_back(sphere, &moved);
+        bad.retain(|&t| orient(sphere, triangles[t as usize]).is_some_and(|o| o <= 0.0));
+    }
+    report.unresolved = bad.len() as u64;
     let mut moves: Vec<f64> = Vec::with_capacity(moved.len());
     for &(v, a) in &moved {
         let p = sphere[v as usize].expect("moved points are reached");
@@ -177,6 +208,47 @@ pub fn untangle(triangles: &[[u32; 3]], sphere: &mut [Option<DVec3>]) -> Untangl
     report.max_move_deg = moves.last().copied().unwrap_or(0.0);
     report.median_move_deg = moves.get(moves.len() / 2).copied().unwrap_or(0.0);
     report
+}
+
+/// The local moves (see the module docs) of the vertices of the `bad` triangles
+/// (sorted) and, when a sweep stalls, of their neighbours within one more ring, up to
+/// [`MAX_RINGS`]; `bad` is left holding the bad triangles that are left, sorted.
+fn local(
+    u: &mut Untangler<'_>,
+    sphere: &mut [Option<DVec3>],
+    bad: &mut Vec<u32>,
+    moved: &mut Vec<(u32, DVec3)>,
+    ring_of: &mut [u32],
+    report: &mut UntangleReport,
+) {
+    let mut rings = 0u32;
+    let mut sweeps = 0u32;
+    while !bad.is_empty() && sweeps < MAX_SWEEPS {
+        sweeps += 1;
+        report.sweeps += 1;
+        let before = bad.len();
+        let mut touched: Vec<u32> = Vec::new();
+        for v in u.near(bad, rings, ring_of) {
+            let ring = ring_of[v as usize];
+            if let Some(p) = u.improve(sphere, v, ring > 0) {
+                moved.push((v, sphere[v as usize].expect("reached")));
+                sphere[v as usize] = Some(p);
+                touched.extend_from_slice(u.around(v));
+                report.max_rings = report.max_rings.max(u64::from(ring));
+            }
+        }
+        // Only the moved vertices' triangles can have changed.
+        bad.extend(touched);
+        bad.sort_unstable();
+        bad.dedup();
+        bad.retain(|&t| orient(sphere, u.triangles[t as usize]).is_some_and(|o| o <= 0.0));
+        if bad.len() >= before {
+            if rings == MAX_RINGS {
+                break;
+            }
+            rings += 1;
+        }
+    }
 }
 
 /// The orientation of triangle `t`'s sphere points, if all three reached.
@@ -363,6 +435,613 @@ impl<'a> Untangler<'a> {
     }
 }
 
+/// Re-embedding of the tangles that local moves leave: the bad triangles are grouped
+/// into tangles (sharing vertices), and each tangle's region (its vertices' stars,
+/// grown ring by ring) gets an embedding inside its fixed boundary.
+///
+/// Behavior:
+/// - A region is tried when it is a disk (one boundary loop through distinct vertices,
+///   Euler characteristic 1, every half-edge once), its boundary points reached, lie
+///   within a hemisphere and wind counter-clockwise seen from outside.
+/// - Its inner vertices (those whose triangles are all in the region) are placed, on the
+///   gnomonic projection at the boundary's mean direction, where each is a weighted
+///   mean of its neighbours ([`Weights`]; positive weights, the boundary fixed), solved
+///   by conjugate gradients or BiCGSTAB. With a convex boundary this is an embedding
+///   (Tutte 1963, Floater 2003); a region's boundary is not always convex, so the
+///   result is kept only when it leaves fewer bad triangles in the region, as stored,
+///   than there were; otherwise the next weights, then a ring more, are tried.
+/// - Projection and embedding are affine-invariant, so a map squeezed 10^4 times is
+///   re-embedded as well as an unsqueezed one.
+/// - Only inner vertices move, so triangles outside the region keep their points bit
+///   for bit. Unreached inner vertices are placed for the solve but keep no point.
+struct Reembedder<'u, 'a> {
+    u: &'u Untangler<'a>,
+    /// A triangle's stamp: equal to `stamp` when it is in the current region.
+    tri_stamp: Vec<u32>,
+    /// A vertex's stamp and its unknown's index in the current region.
+    vert_stamp: Vec<u32>,
+    vert_index: Vec<u32>,
+    stamp: u32,
+}
+
+/// Rings around a tangle that its re-embedded region may take, at most.
+pub const MAX_REGION_RINGS: u32 = 32;
+
+/// The share of the surface's triangles a re-embedded region may take, at most: a
+/// region is a disk on one side of its boundary, and its points must lie in a
+/// hemisphere.
+const MAX_REGION_SHARE: f64 = 0.25;
+
+impl<'u, 'a> Reembedder<'u, 'a> {
+    fn new(u: &'u Untangler<'a>) -> Self {
+        Self {
+            u,
+            tri_stamp: vec![0; u.triangles.len()],
+            vert_stamp: vec![0; u.offsets.len() - 1],
+            vert_index: vec![0; u.offsets.len() - 1],
+            stamp: 0,
+        }
+    }
+
+    /// Re-embed the tangles of `bad` (sorted), recording moved vertices' first points in
+    /// `moved`. Returns the bad triangles left, sorted.
+    fn run(
+        &mut self,
+        sphere: &mut [Option<DVec3>],
+        mut bad: Vec<u32>,
+        moved: &mut Vec<(u32, DVec3)>,
+        report: &mut UntangleReport,
+    ) -> Vec<u32> {
+        let mut left: Vec<u32> = Vec::new();
+        while let Some(&first) = bad.first() {
+            let tangle = self.tangle(&bad, first);
+            // The smallest region whose embedding leaves fewer bad triangles than it
+            // holds now.
+            let mut found: Option<Found> = None;
+            'rings: for rings in 0..MAX_REGION_RINGS {
+                for weights in [Weights::MeanValue, Weights::InverseLength, Weights::Uniform] {
+                    match self.try_region(sphere, &tangle, rings, weights) {
+                        Attempt::Grow => {}
+                        Attempt::Stop => break 'rings,
+                        Attempt::Placed {
+                            region,
+                            placed,
+                            bad_before,
+                            bad_after,
+                        } => {
+                            if bad_after < bad_before {
+                                found = Some((rings, region, placed));
+                                break 'rings;
+                            }
+                        }
+                    }
+                }
+            }
+            if let Some((rings, region, placed)) = found {
+                for (v, p) in placed {
+                    if let Some(old) = sphere[v as usize] {
+                        moved.push((v, old));
+                        sphere[v as usize] = Some(p);
+                        report.region_seeds += 1;
+                    }
+                }
+                report.regions += 1;
+                report.region_rings = report.region_rings.max(u64::from(rings));
+                // The region's bad triangles are those of its embedding.
+                bad.retain(|t| region.binary_search(t).is_err());
+                left.extend(region.iter().copied().filter(|&t| {
+                    orient(sphere, self.u.triangles[t as usize]).is_some_and(|o| o <= 0.0)
+                }));
+            }
+            bad.retain(|t| tangle.binary_search(t).is_err());
+            left.extend_from_slice(&tangle);
+            left.sort_unstable();
+            left.dedup();
+        }
+        // Triangles of a tangle whose region was re-embedded later may be good now.
+        left.retain(|&t| orient(sphere, self.u.triangles[t as usize]).is_some_and(|o| o <= 0.0));
+        left
+    }
+
+    /// Move the re-embedded vertices `before` (each with its point before the
+    /// embedding) back toward those points, all the way or by halves of the way down to
+    /// an eighth, wherever none of their triangles that is positive turns bad: what the
+    /// embedding moved and need not have stays where the streamlines put it.
+    fn go_back(&self, sphere: &mut [Option<DVec3>], before: &[(u32, DVec3)]) {
+        let u = self.u;
+        let positive = |sphere: &[Option<DVec3>], v: u32| -> Vec<bool> {
+            u.around(v)
+                .iter()
+                .map(|&t| orient(sphere, u.triangles[t as usize]).is_some_and(|o| o > 0.0))
+                .collect()
+        };
+        for _ in 0..RETURN_SWEEPS {
+            let mut changed = false;
+            for &(v, old) in before {
+                let now = sphere[v as usize].expect("placed points are reached");
+                if now == old {
+                    continue;
+                }
+                let keep = positive(sphere, v);
+                for halvings in 0..6 {
+                    let p = if halvings == 0 {
+                        old
+                    } else {
+                        stored(now.lerp(old, 0.5f64.powi(halvings)).normalize())
+                    };
+                    if p == now || !p.is_finite() {
+                        break;
+                    }
+                    sphere[v as usize] = Some(p);
+                    let ok = positive(sphere, v)
+                        .iter()
+                        .zip(&keep)
+                        .all(|(&after, &was)| after || !was);
+                    if ok {
+                        changed = true;
+                        break;
+                    }
+                    sphere[v as usize] = Some(now);
+                }
+            }
+            if !changed {
+                break;
+            }
+        }
+    }
+
+    /// The bad triangles that share vertices with `first`, directly or through others,
+    /// sorted.
+    fn tangle(&mut self, bad: &[u32], first: u32) -> Vec<u32> {
+        let u = self.u;
+        self.stamp += 1;
+        let stamp = self.stamp;
+        let is_bad = |t: u32| bad.binary_search(&t).is_ok();
+        let mut out = vec![first];
+        self.tri_stamp[first as usize] = stamp;
+        let mut i = 0;
+        while i < out.len() {
+            let t = out[i];
+            i += 1;
+            for v in u.triangles[t as usize] {
+                for &w in u.around(v) {
+                    if self.tri_stamp[w as usize] != stamp && is_bad(w) {
+                        self.tri_stamp[w as usize] = stamp;
+                        out.push(w);
+                    }
+                }
+            }
+        }
+        out.sort_unstable();
+        out
+    }
+
+    /// Try the region of the vertices within `rings` rings of the `tangle`'s.
+    #[allow(clippy::too_many_lines)] // one pass of checks, in the order of the doc
+    #[allow(clippy::many_single_char_names)] // u the index, c the direction, v w vertices, q points, x the unknowns
+    fn try_region(
+        &mut self,
+        sphere: &[Option<DVec3>],
+        tangle: &[u32],
+        rings: u32,
+        weights: Weights,
+    ) -> Attempt {
+        let u = self.u;
+        // The region: the stars of the vertices within `rings` rings of the tangle's.
+        let mut core: Vec<u32> = tangle
+            .iter()
+            .flat_map(|&t| u.triangles[t as usize])
+            .collect();
+        core.sort_unstable();
+        core.dedup();
+        self.stamp += 1;
+        let stamp = self.stamp;
+        let mut frontier = core.clone();
+        for &v in &core {
+            self.vert_stamp[v as usize] = stamp;
+        }
+        for _ in 0..rings {
+            let mut next = Vec::new();
+            for &v in &frontier {
+                for &t in u.around(v) {
+                    for w in u.triangles[t as usize] {
+                        if self.vert_stamp[w as usize] != stamp {
+                            self.vert_stamp[w as usize] = stamp;
+                            next.push(w);
+                        }
+                    }
+                }
+            }
+            core.extend_from_slice(&next);
+            frontier = next;
+        }
+        let mut region: Vec<u32> = core.iter().flat_map(|&v| u.around(v)).copied().collect();
+        region.sort_unstable();
+        region.dedup();
+        if region.len() as f64 > MAX_REGION_SHARE * u.triangles.len() as f64 {
+            return Attempt::Stop;
+        }
+        // Its half-edges, each once (a manifold region), and its boundary.
+        let mut half: HashSet<(u32, u32)> = HashSet::with_capacity(region.len() * 3);
+        for &t in &region {
+            self.tri_stamp[t as usize] = stamp;
+            let [a, b, c] = u.triangles[t as usize];
+            if a == b || b == c || c == a {
+                return Attempt::Stop;
+            }
+            for e in [(a, b), (b, c), (c, a)] {
+                if !half.insert(e) {
+                    return Attempt::Stop;
+                }
+            }
+        }
+        let mut next: HashMap<u32, u32> = HashMap::new();
+        let mut boundary_edges = 0usize;
+        for &(a, b) in &half {
+            if !half.contains(&(b, a)) {
+                boundary_edges += 1;
+                if next.insert(a, b).is_some() {
+                    return Attempt::Grow; // the boundary touches itself at a
+                }
+            }
+        }
+        if boundary_edges < 3 {
+            return Attempt::Stop;
+        }
+        // One loop through every boundary vertex.
+        let start = *next.keys().min().expect("a boundary");
+        let mut lp = vec![start];
+        let mut v = next[&start];
+        while v != start {
+            if lp.len() > boundary_edges {
+                return Attempt::Grow;
+            }
+            lp.push(v);
+            v = match next.get(&v) {
+                Some(&w) => w,
+                None => return Attempt::Grow,
+            };
+        }
+        if lp.len() != boundary_edges {
+            return Attempt::Grow; // more than one loop: holes
+        }
+        // Vertices: inner (all triangles in the region) and boundary.
+        let mut verts: Vec<u32> = region
+            .iter()
+            .flat_map(|&t| u.triangles[t as usize])
+            .collect();
+        verts.sort_unstable();
+        verts.dedup();
+        // 3 F = 2 E_inner + E_boundary.
+        let edges = usize::midpoint(3 * region.len(), boundary_edges);
+        if verts.len() + region.len() != edges + 1 {
+            return Attempt::Grow; // not a disk
+        }
+        self.stamp += 1;
+        let vstamp = self.stamp;
+        for &v in &lp {
+            self.vert_stamp[v as usize] = vstamp;
+        }
+        let inner: Vec<u32> = verts
+            .iter()
+            .copied()
+            .filter(|&v| self.vert_stamp[v as usize] != vstamp)
+            .collect();
+        if inner.is_empty() {
+            return Attempt::Grow;
+        }
+        debug_assert!(inner.iter().all(|&v| u
+            .around(v)
+            .iter()
+            .all(|&t| self.tri_stamp[t as usize] == stamp)));
+        // The boundary's points, projected at their mean direction.
+        let mut sum = DVec3::ZERO;
+        let mut bpts = Vec::with_capacity(lp.len());
+        for &v in &lp {
+            match sphere[v as usize] {
+                Some(p) => {
+                    sum += p;
+                    bpts.push(p);
+                }
+                None => return Attempt::Grow,
+            }
+        }
+        let Some(c) = sum.try_normalize() else {
+            return Attempt::Stop;
+        };
+        if bpts.iter().any(|p| p.dot(c) <= 0.1) {
+            return Attempt::Stop;
+        }
+        let e1 = c.any_orthonormal_vector();
+        let e2 = c.cross(e1);
+        let project = |p: DVec3| DVec2::new(p.dot(e1), p.dot(e2)) / p.dot(c);
+        let bq: Vec<DVec2> = bpts.iter().map(|&p| project(p)).collect();
+        let area: f64 = (0..bq.len())
+            .map(|i| bq[i].perp_dot(bq[(i + 1) % bq.len()]))
+            .sum();
+        if area.is_nan() || area <= 0.0 {
+            return Attempt::Grow;
+        }
+        // Tutte: deg(i) x_i - sum of inner neighbours x_j = sum of boundary neighbours q_j.
+        for (k, &v) in inner.iter().enumerate() {
+            self.vert_index[v as usize] = k as u32;
+        }
+        let mut bq_of: HashMap<u32, DVec2> = HashMap::with_capacity(lp.len());
+        for (&v, &q) in lp.iter().zip(&bq) {
+            bq_of.insert(v, q);
+        }
+        let n = inner.len();
+        let mean = bq.iter().copied().sum::<DVec2>() / bq.len() as f64;
+        let now: Vec<Option<DVec2>> = inner
+            .iter()
+            .map(|&v| sphere[v as usize].filter(|p| p.dot(c) > 0.1).map(project))
+            .collect();
+        let at = |w: u32| -> Option<DVec2> {
+            bq_of.get(&w).copied().or_else(|| {
+                if self.vert_stamp[w as usize] == vstamp {
+                    None
+                } else {
+                    now[self.vert_index[w as usize] as usize]
+                }
+            })
+        };
+        // The lengths of the region's edges in the map as it is, for a floor: a
+        // millionth of their median, so that edges that are points (or unknown) keep
+        // the weights finite.
+        let mut ls: Vec<f64> = Vec::new();
+        for (k, &v) in inner.iter().enumerate() {
+            for &t in u.around(v) {
+                for w in u.triangles[t as usize] {
+                    if let (Some(a), Some(b)) = (now[k], at(w)) {
+                        let d = a.distance(b);
+                        if d > 0.0 && d.is_finite() {
+                            ls.push(d);
+                        }
+                    }
+                }
+            }
+        }
+        ls.sort_by(f64::total_cmp);
+        let Some(&median) = ls.get(ls.len() / 2) else {
+            return Attempt::Grow;
+        };
+        let floor = median * 1e-6;
+        // Each inner vertex's neighbours and weights (positive in every mode).
+        let mut nbr_off = vec![0usize; n + 1];
+        let mut nbr: Vec<(u32, f64)> = Vec::new();
+        let mut rhs = vec![DVec2::ZERO; n];
+        let mut deg = vec![0.0f64; n];
+        let mut row: Vec<(u32, f64)> = Vec::new();
+        for (k, &v) in inner.iter().enumerate() {
+            row.clear();
+            for &t in u.around(v) {
+                let tri = u.triangles[t as usize];
+                let i = tri.iter().position(|&x| x == v).expect("v is a corner");
+                let (a, b) = (tri[(i + 1) % 3], tri[(i + 2) % 3]);
+                match (weights, now[k], at(a), at(b)) {
+                    (Weights::MeanValue, Some(o), Some(qa), Some(qb)) => {
+                        // Floater's mean value weights, from the unsigned angle at v.
+                        let (da, db) = (qa - o, qb - o);
+                        let (la, lb) = (da.length().max(floor), db.length().max(floor));
+                        let cos = (da.dot(db) / (la * lb)).clamp(-1.0, 1.0);
+                        let half = (0.5 * cos.acos()).tan().min(1e8);
+                        row.push((a, half / la));
+                        row.push((b, half / lb));
+                    }
+                    (Weights::MeanValue | Weights::InverseLength, Some(o), _, _) => {
+                        for w in [a, b] {
+                            let d = at(w).map_or(median, |q| q.distance(o).max(floor));
+                            row.push((w, 0.5 / d));
+                        }
+                    }
+                    _ => {
+                        row.push((a, 0.5 / median));
+                        row.push((b, 0.5 / median));
+                    }
+                }
+            }
+            row.sort_unstable_by_key(|&(w, _)| w);
+            let mut m = 0;
+            while m < row.len() {
+                let w = row[m].0;
+                let mut x = 0.0;
+                while m < row.len() && row[m].0 == w {
+                    x += row[m].1;
+                    m += 1;
+                }
+                if let Some(q) = bq_of.get(&w) {
+                    rhs[k] += x * *q;
+                } else {
+                    nbr.push((self.vert_index[w as usize], x));
+                }
+                deg[k] += x;
+            }
+            nbr_off[k + 1] = nbr.len();
+        }
+        if deg.iter().any(|d| !(d.is_finite() && *d > 0.0)) {
+            return Attempt::Grow;
+        }
+        let apply = |x: &[DVec2], y: &mut [DVec2]| {
+            for k in 0..n {
+                let mut s = deg[k] * x[k];
+                for &(j, w) in &nbr[nbr_off[k]..nbr_off[k + 1]] {
+                    s -= w * x[j as usize];
+                }
+                y[k] = s;
+            }
+        };
+        let mut x: Vec<DVec2> = now.iter().map(|q| q.unwrap_or(mean)).collect();
+        if weights == Weights::MeanValue {
+            bicgstab(&apply, &deg, &rhs, &mut x);
+        } else {
+            cg(&apply, &deg, &rhs, &mut x);
+        }
+        let placed: Vec<(u32, DVec3)> = inner
+            .iter()
+            .zip(&x)
+            .map(|(&v, q)| (v, stored((c + q.x * e1 + q.y * e2).normalize())))
+            .collect();
+        if placed.iter().any(|(_, p)| !p.is_finite()) {
+            return Attempt::Grow;
+        }
+        // Its bad triangles as stored, before and after.
+        let point = |w: u32| -> Option<DVec3> {
+            if self.vert_stamp[w as usize] == vstamp {
+                sphere[w as usize]
+            } else {
+                sphere[w as usize].map(|_| placed[self.vert_index[w as usize] as usize].1)
+            }
+        };
+        let (mut bad_before, mut bad_after) = (0, 0);
+        for &t in &region {
+            let [a, b, cc] = u.triangles[t as usize];
+            if orient(sphere, [a, b, cc]).is_some_and(|o| o <= 0.0) {
+                bad_before += 1;
+            }
+            if let (Some(pa), Some(pb), Some(pc)) = (point(a), point(b), point(cc)) {
+                if orientation(pa, pb, pc) <= 0.0 {
+                    bad_after += 1;
+                }
+            }
+        }
+        Attempt::Placed {
+            region,
+            placed,
+            bad_before,
+            bad_after,
+        }
+    }
+}
+
+/// The weights of a region's embedding, tried in this order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Weights {
+    /// Floater's mean value weights from the map as it is: where a vertex's ring is
+    /// laid down well, the solve leaves it where it is, so the embedding moves the map
+    /// near its folds only. Not symmetric.
+    MeanValue,
+    /// The inverse of each edge's length in the map as it is.
+    InverseLength,
+    /// Tutte's: every neighbour alike.
+    Uniform,
+}
+
+/// A kept region: its rings, its triangles (sorted) and its inner vertices' new points.
+type Found = (u32, Vec<u32>, Vec<(u32, DVec3)>);
+
+/// What one region came to.
+enum Attempt {
+    /// Not a region to embed in, or its embedding has a bad triangle: try a ring more.
+    Grow,
+    /// No larger region will do.
+    Stop,
+    /// The region's triangles (sorted), the inner vertices' new points, and the
+    /// region's bad triangles before and after.
+    Placed {
+        region: Vec<u32>,
+        placed: Vec<(u32, DVec3)>,
+        bad_before: usize,
+        bad_after: usize,
+    },
+}
+
+/// Solve `A x = b` for the symmetric positive definite `apply` (a Dirichlet graph
+/// Laplacian with diagonal `diag`) by conjugate gradients preconditioned by the
+/// diagonal, from `x`, both coordinates at once, to a residual of 1e-14 of `b`'s.
+#[allow(clippy::many_single_char_names)] // the method's names
+fn cg(apply: &dyn Fn(&[DVec2], &mut [DVec2]), diag: &[f64], b: &[DVec2], x: &mut [DVec2]) {
+    let n = b.len();
+    let dot = |a: &[DVec2], c: &[DVec2]| -> DVec2 {
+        a.iter().zip(c).fold(DVec2::ZERO, |s, (p, q)| s + *p * *q)
+    };
+    let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { 0.0 };
+    let mut ax = vec![DVec2::ZERO; n];
+    apply(x, &mut ax);
+    let mut r: Vec<DVec2> = b.iter().zip(&ax).map(|(p, q)| *p - *q).collect();
+    let mut z: Vec<DVec2> = r.iter().zip(diag).map(|(q, d)| *q / *d).collect();
+    let mut p = z.clone();
+    let mut rz = dot(&r, &z);
+    let bb = dot(b, b) * 1e-28;
+    let mut ap = vec![DVec2::ZERO; n];
+    for _ in 0..(4 * n + 100) {
+        let rr = dot(&r, &r);
+        if rr.x <= bb.x && rr.y <= bb.y {
+            break;
+        }
+        apply(&p, &mut ap);
+        let pap = dot(&p, &ap);
+        // Each coordinate is its own system with the same matrix.
+        let alpha = DVec2::new(ratio(rz.x, pap.x), ratio(rz.y, pap.y));
+        for k in 0..n {
+            x[k] += alpha * p[k];
+            r[k] -= alpha * ap[k];
+            z[k] = r[k] / diag[k];
+        }
+        let rz_new = dot(&r, &z);
+        let beta = DVec2::new(ratio(rz_new.x, rz.x), ratio(rz_new.y, rz.y));
+        for k in 0..n {
+            p[k] = z[k] + beta * p[k];
+        }
+        rz = rz_new;
+    }
+}
+
+/// Solve `A x = b` for the nonsymmetric `apply` (a Dirichlet graph Laplacian with
+/// positive weights and diagonal `diag`) by BiCGSTAB preconditioned by the diagonal,
+/// from `x`, each coordinate its own system, to a residual of 1e-14 of `b`'s.
+#[allow(clippy::many_single_char_names)] // the method's names
+fn bicgstab(apply: &dyn Fn(&[DVec2], &mut [DVec2]), diag: &[f64], b: &[DVec2], x: &mut [DVec2]) {
+    let n = b.len();
+    let dot = |a: &[DVec2], c: &[DVec2]| -> DVec2 {
+        a.iter().zip(c).fold(DVec2::ZERO, |s, (p, q)| s + *p * *q)
+    };
+    let ratio = |a: DVec2, b: DVec2| {
+        DVec2::new(
+            if b.x == 0.0 { 0.0 } else { a.x / b.x },
+            if b.y == 0.0 { 0.0 } else { a.y / b.y },
+        )
+    };
+    let mut t = vec![DVec2::ZERO; n];
+    apply(x, &mut t);
+    let mut r: Vec<DVec2> = b.iter().zip(&t).map(|(p, q)| *p - *q).collect();
+    let r0 = r.clone();
+    let bb = dot(b, b) * 1e-28;
+    let (mut rho, mut alpha, mut omega) = (DVec2::ONE, DVec2::ONE, DVec2::ONE);
+    let mut v = vec![DVec2::ZERO; n];
+    let mut p = vec![DVec2::ZERO; n];
+    let mut y = vec![DVec2::ZERO; n];
+    let mut z = vec![DVec2::ZERO; n];
+    let mut sv = vec![DVec2::ZERO; n];
+    for _ in 0..(4 * n + 100) {
+        let rr = dot(&r, &r);
+        if rr.x <= bb.x && rr.y <= bb.y {
+            break;
+        }
+        let rho_new = dot(&r0, &r);
+        let beta = ratio(rho_new, rho) * ratio(alpha, omega);
+        rho = rho_new;
+        for k in 0..n {
+            p[k] = r[k] + beta * (p[k] - omega * v[k]);
+            y[k] = p[k] / diag[k];
+        }
+        apply(&y, &mut v);
+        alpha = ratio(rho, dot(&r0, &v));
+        for k in 0..n {
+            sv[k] = r[k] - alpha * v[k];
+            z[k] = sv[k] / diag[k];
+        }
+        apply(&z, &mut t);
+        omega = ratio(dot(&t, &sv), dot(&t, &t));
+        for k in 0..n {
+            x[k] += alpha * y[k] + omega * z[k];
+            r[k] = sv[k] - omega * t[k];
+        }
+        if !omega.is_finite() || (omega.x == 0.0 && omega.y == 0.0) {
+            break;
+        }
+    }
+}
+
 /// The smallest of the affine functions `a . x + k` at `x`.
 fn smallest(lines: &[(DVec2, f64)], x: DVec2) -> f64 {
     lines
@@ -439,6 +1118,43 @@ mod tests {
         tris.iter()
             .filter(|&&t| orient(sphere, t).is_some_and(|o| o <= 0.0))
             .count()
+    }
+
+    #[test]
+    fn a_region_laid_down_twice_is_reembedded_inside_its_boundary() {
+        for squeeze in [1.0, 1e4] {
+            let (_pos, tris, mut sphere) = cap(16, squeeze);
+            // Vertices in columns 6..=9 of rows 5..=10 are mirrored across column 7.5:
+            // the patch is laid down reversed, as the two sides of a thin sheet are.
+            let at = |i: usize, j: usize| j * 17 + i;
+            let original = sphere.clone();
+            for j in 5..=10 {
+                for i in 6..=9 {
+                    sphere[at(i, j)] = original[at(15 - i, j)];
+                }
+            }
+            let tangled = sphere.clone();
+            let bad: Vec<u32> = (0..tris.len() as u32)
+                .filter(|&t| orient(&sphere, tris[t as usize]).is_some_and(|o| o <= 0.0))
+                .collect();
+            assert!(bad.len() > 10, "the test needs a fold");
+            let u = Untangler::new(&tris, sphere.len());
+            let mut r = Reembedder::new(&u);
+            let mut moved = Vec::new();
+            let mut report = UntangleReport::default();
+            let left = r.run(&mut sphere, bad, &mut moved, &mut report);
+            assert_eq!(left, Vec::<u32>::new(), "squeeze {squeeze}");
+            assert_eq!(bad_count(&tris, &sphere), 0);
+            assert_eq!(report.regions, 1);
+            assert!(report.region_seeds > 0);
+            // Only the region's inner vertices moved.
+            for (v, (a, b)) in sphere.iter().zip(&tangled).enumerate() {
+                let (i, j) = ((v % 17) as i64, (v / 17) as i64);
+                if !(3..=12).contains(&i) || !(2..=13).contains(&j) {
+                    assert_eq!(a, b, "vertex {v} moved");
+                }
+            }
+        }
     }
 
     #[test]

@@ -405,7 +405,7 @@ pub(super) fn trace_section(p: &mut String, a: &Value) {
                 p,
                 &[
                     (
-                        "flipped as the streamlines arrived (before --untangle)",
+                        "flipped as the streamlines arrived (before untangling)",
                         text(at(u, "/flipped_arrivals")),
                     ),
                     ("seeds moved by untangling", text(at(u, "/seeds_moved"))),
