@@ -465,7 +465,7 @@ struct Reembedder<'u, 'a> {
 }
 
 /// Rings around a tangle that its re-embedded region may take, at most.
-pub const MAX_REGION_RINGS: u32 = 32;
+pub const MAX_REGION_RINGS: u32 = 16;
 
 /// The share of the surface's triangles a re-embedded region may take, at most: a
 /// region is a disk on one side of its boundary, and its points must lie in a
