@@ -554,17 +554,19 @@ def trace(
     h_max=2.0,
     max_steps=20000,
     level_step=None,
-    untangle=True,
+    untangle=False,
+    no_untangle=False,
     progress=True,
 ):
     """Trace streamlines from the seeds to the center (``harmap trace``); returns the
     trace's report. ``seeds``: "surface" (the input mesh's vertices, or the labels'
     surface nets; the command's default, whose triangles give the flip counts) or
     "boundary" (every boundary voxel). ``atol`` and ``level_step`` default by the
-    seeds, as the command's. ``untangle`` (on by default, as the command's) untangles
-    a whole surface's sphere map: theta and psi become the untangled map, arrival_theta
-    and arrival_psi keep the arrivals; ``untangle=False`` keeps the arrivals as the map
-    (``--no-untangle``). No effect with boundary seeds or a sample. Ctrl-C stops it within about a second
+    seeds, as the command's. A whole surface's sphere map (surface seeds without a
+    sample) is untangled by default, as the command's: theta and psi become the
+    untangled map, arrival_theta and arrival_psi keep the arrivals; ``no_untangle=True``
+    keeps the arrivals as the map (``--no-untangle``); ``untangle=True`` asks for it and
+    is refused with boundary seeds or a sample. Ctrl-C stops it within about a second
     (KeyboardInterrupt)."""
     with _Bars(progress) as bars:
         r = _harmap.trace(
@@ -581,6 +583,7 @@ def trace(
             max_steps=max_steps,
             level_step=level_step,
             untangle=untangle,
+            no_untangle=no_untangle,
             progress=bars,
         )
     return json.loads(r)
@@ -692,7 +695,8 @@ def run(
     h_max=2.0,
     max_steps=20000,
     level_step=None,
-    untangle=True,
+    untangle=False,
+    no_untangle=False,
     trace_rtol=0.0,
     exact=False,
     progress=True,
@@ -759,6 +763,7 @@ def run(
                 max_steps=max_steps,
                 level_step=level_step,
                 untangle=untangle,
+                no_untangle=no_untangle,
                 trace_rtol=trace_rtol,
                 exact=exact,
                 atlas=str(out.with_suffix(".atlas.png")),

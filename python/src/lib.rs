@@ -515,6 +515,7 @@ fn trace_options(
     max_steps: u32,
     level_step: Option<f64>,
     untangle: bool,
+    no_untangle: bool,
 ) -> PyResult<harmap::trace::TraceOptions> {
     use harmap::trace::{Rk45, SeedKind, TraceOptions};
     let seeds = match seeds {
@@ -523,12 +524,22 @@ fn trace_options(
         s => return Err(usage(format!("seeds '{s}': use surface or boundary"))),
     };
     let default = Rk45::for_seeds(seeds);
+    // As the command: untangled by default where the seeds are a whole surface.
+    if untangle && no_untangle {
+        return Err(usage("untangle and no_untangle: give one"));
+    }
+    if untangle && (seeds != SeedKind::Surface || sample.is_some()) {
+        return Err(usage(
+            "untangle works on the whole surface's sphere map: use it with surface seeds \
+             (the default) and without sample",
+        ));
+    }
     Ok(TraceOptions {
         seeds,
         sample,
         stop_radius,
         tile,
-        untangle,
+        untangle: !no_untangle && seeds == SeedKind::Surface && sample.is_none(),
         mem,
         rk: Rk45 {
             atol: atol.unwrap_or(default.atol),
@@ -547,7 +558,7 @@ fn trace_options(
 #[pyfunction]
 #[pyo3(signature = (run, *, seeds="surface", sample=None, stop_radius=None, tile=None,
     mem="1GiB", atol=None, rtol=0.0, h_min=1e-6, h_max=2.0, max_steps=20_000,
-    level_step=None, untangle=true, progress=None))]
+    level_step=None, untangle=false, no_untangle=false, progress=None))]
 #[allow(clippy::too_many_arguments)]
 fn trace(
     py: Python<'_>,
@@ -564,6 +575,7 @@ fn trace(
     max_steps: u32,
     level_step: Option<f64>,
     untangle: bool,
+    no_untangle: bool,
     progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<String> {
     let opts = trace_options(
@@ -579,6 +591,7 @@ fn trace(
         max_steps,
         level_step,
         untangle,
+        no_untangle,
     )?;
     let r = open(py, &run)?;
     // Stop radii that cannot work are refused before anything is traced, as the
@@ -638,7 +651,7 @@ fn map(
     radius=None, method="multigrid", cycle="fmg", rtol=1e-6, tol=0.0, eps=1e-4, max_iter=1000,
     omega=None, checkpoint_every=300.0, seeds="surface", sample=None, stop_radius=None,
     tile=None, atol=None, h_min=1e-6, h_max=2.0, max_steps=20_000, level_step=None,
-    untangle=true, trace_rtol=0.0, exact=false, atlas=None, report=None, progress=None))]
+    untangle=false, no_untangle=false, trace_rtol=0.0, exact=false, atlas=None, report=None, progress=None))]
 #[allow(clippy::too_many_arguments, clippy::fn_params_excessive_bools)]
 fn run(
     py: Python<'_>,
@@ -683,6 +696,7 @@ fn run(
     max_steps: u32,
     level_step: Option<f64>,
     untangle: bool,
+    no_untangle: bool,
     trace_rtol: f64,
     exact: bool,
     atlas: Option<PathBuf>,
@@ -743,6 +757,7 @@ fn run(
             max_steps,
             level_step,
             untangle,
+            no_untangle,
         )?,
         map: map_options(exact, None, mem),
         atlas,

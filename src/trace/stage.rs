@@ -584,6 +584,11 @@ pub fn trace(
     progress: &dyn Progress,
 ) -> Result<TraceReport, crate::Error> {
     let t0 = Instant::now();
+    // Recorded as it applies: untangling needs a whole surface's seeds.
+    let opts = &TraceOptions {
+        untangle: opts.untangle && opts.seeds == SeedKind::Surface && opts.sample.is_none(),
+        ..opts.clone()
+    };
     let _lock = run.lock()?;
     let _staged = run.staged_images(&["seeds"]);
     let spec: GridSpec = run.grid()?;

@@ -38,8 +38,8 @@
 //!   put, then inverse edge lengths, then uniform). The first region whose embedding
 //!   leaves fewer bad triangles than it holds is kept, and local moves run again, for
 //!   up to [`MAX_REGION_ROUNDS`] rounds ([`Reembedder`]).
-//! - Last, every moved vertex goes back toward its arrival point, all the way or by
-//!   halves of the way down to a 32nd, wherever none of its positive triangles turns
+//! - Last, when regions were re-embedded, every moved vertex goes back toward its
+//!   arrival point, all the way or by halves of the way down to a 32nd, wherever none of its positive triangles turns
 //!   bad: the untangled map keeps the streamlines' map wherever it need not leave it.
 //! - Vertices that did not reach the center are never given a point, and a vertex with
 //!   one among its neighbours is held in the local moves (its ring is open), as is a
@@ -350,6 +350,13 @@ impl<'a> Untangler<'a> {
         if ring.len() > MAX_VALENCE {
             return None;
         }
+        // A triangle with v twice has no area wherever v goes.
+        if ring.iter().any(|&t| {
+            let tri = self.triangles[t as usize];
+            tri.iter().filter(|&&x| x == v).count() > 1
+        }) {
+            return None;
+        }
 
         // The other two corners of each triangle, in its order after v.
         let mut corners: Vec<[DVec3; 2]> = Vec::with_capacity(ring.len());
@@ -519,7 +526,7 @@ impl<'u, 'a> Reembedder<'u, 'a> {
             }
             if let Some((rings, region, placed)) = found {
                 for (v, p) in placed {
-                    if let Some(old) = sphere[v as usize] {
+                    if let Some(old) = sphere[v as usize].filter(|&old| old != p) {
                         moved.push((v, old));
                         sphere[v as usize] = Some(p);
                         report.region_seeds += 1;
@@ -545,7 +552,7 @@ impl<'u, 'a> Reembedder<'u, 'a> {
 
     /// Move the re-embedded vertices `before` (each with its point before the
     /// embedding) back toward those points, all the way or by halves of the way down to
-    /// an eighth, wherever none of their triangles that is positive turns bad: what the
+    /// a 32nd, wherever none of their triangles that is positive turns bad: what the
     /// embedding moved and need not have stays where the streamlines put it.
     fn go_back(&self, sphere: &mut [Option<DVec3>], before: &[(u32, DVec3)]) {
         let u = self.u;
@@ -730,10 +737,15 @@ impl<'u, 'a> Reembedder<'u, 'a> {
         if inner.is_empty() {
             return Attempt::Grow;
         }
-        debug_assert!(inner.iter().all(|&v| u
-            .around(v)
-            .iter()
-            .all(|&t| self.tri_stamp[t as usize] == stamp)));
+        // An inner vertex has every triangle in the region; one that does not (a pinched
+        // vertex with a fan outside) would move triangles outside it.
+        if !inner.iter().all(|&v| {
+            u.around(v)
+                .iter()
+                .all(|&t| self.tri_stamp[t as usize] == stamp)
+        }) {
+            return Attempt::Grow;
+        }
         // The boundary's points, projected at their mean direction.
         let mut sum = DVec3::ZERO;
         let mut bpts = Vec::with_capacity(lp.len());
@@ -913,6 +925,10 @@ impl<'u, 'a> Reembedder<'u, 'a> {
     }
 }
 
+/// Iterations of a region's solver, at most: a solve that has not converged by then
+/// leaves an embedding that the count of bad triangles judges, as any other.
+const MAX_SOLVER_ITERATIONS: usize = 2000;
+
 /// The weights of a region's embedding, tried in this order.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Weights {
@@ -963,9 +979,9 @@ fn cg(apply: &dyn Fn(&[DVec2], &mut [DVec2]), diag: &[f64], b: &[DVec2], x: &mut
     let mut rz = dot(&r, &z);
     let bb = dot(b, b) * 1e-28;
     let mut ap = vec![DVec2::ZERO; n];
-    for _ in 0..(4 * n + 100) {
+    for _ in 0..(4 * n + 100).min(MAX_SOLVER_ITERATIONS) {
         let rr = dot(&r, &r);
-        if rr.x <= bb.x && rr.y <= bb.y {
+        if (rr.x <= bb.x && rr.y <= bb.y) || !rr.is_finite() {
             break;
         }
         apply(&p, &mut ap);
@@ -1012,9 +1028,9 @@ fn bicgstab(apply: &dyn Fn(&[DVec2], &mut [DVec2]), diag: &[f64], b: &[DVec2], x
     let mut y = vec![DVec2::ZERO; n];
     let mut z = vec![DVec2::ZERO; n];
     let mut sv = vec![DVec2::ZERO; n];
-    for _ in 0..(4 * n + 100) {
+    for _ in 0..(4 * n + 100).min(MAX_SOLVER_ITERATIONS) {
         let rr = dot(&r, &r);
-        if rr.x <= bb.x && rr.y <= bb.y {
+        if (rr.x <= bb.x && rr.y <= bb.y) || !rr.is_finite() {
             break;
         }
         let rho_new = dot(&r0, &r);
