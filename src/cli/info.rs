@@ -343,6 +343,12 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
         {
             writeln!(out, "folds:    {}", super::map::folded_line(&f))?;
         }
+        if let Some(u) = v
+            .get("unfold")
+            .and_then(|u| serde_json::from_value::<harmap::map::Unfold>(u.clone()).ok())
+        {
+            writeln!(out, "          {}", super::map::unfold_line(&u))?;
+        }
     }
     Ok(())
 }

@@ -96,7 +96,19 @@ pub fn summary(r: &MapReport, seconds: f64) -> String {
     if let Some(f) = &r.folded {
         let _ = write!(s, "; {}", folded_line(f));
     }
+    if let Some(u) = &r.unfold {
+        let _ = write!(s, "; {}", unfold_line(u));
+    }
     s
+}
+
+/// What unfolding moved.
+#[must_use]
+pub fn unfold_line(u: &harmap::map::Unfold) -> String {
+    format!(
+        "unfolded {} folded voxels by moving {} directions (median {:.3}, at most {:.2} degrees)",
+        u.folded_before, u.moved, u.median_move_degrees, u.max_move_degrees
+    )
 }
 
 /// The folded voxels and where the largest clusters of them are.

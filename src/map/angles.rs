@@ -104,11 +104,10 @@ impl<T: Scalar> Angles<T> {
     }
 
     /// Write the blocks `decomp` owns not written yet from `dirs` (without directions
-    /// where there are none), publish theta and psi, and return the counts (target
+    /// where there are none) and return the counts (target
     /// voxels, voxels with a direction) over this part's blocks.
     pub(super) fn finish(
         self,
-        run: &RunDir,
         labels: &dyn BlockStore<u8>,
         dirs: Option<&Directions>,
         mem: MemBudget,
@@ -141,8 +140,6 @@ impl<T: Scalar> Angles<T> {
             Ok(())
         })?;
         progress.finish();
-        run.commit_image("theta")?;
-        run.commit_image("psi")?;
         Ok(self
             .counts
             .into_inner()

@@ -1,16 +1,15 @@
 //! Folded voxels: where the volume map x -> ball point reverses orientation.
 //!
-//! The ball point of a voxel is p = phi d(theta, psi) = (1 - u) d, in Cartesian x, y, z.
-//! Its Jacobian by central differences (one-sided where a neighbour has no value) has a
-//! negative determinant where the map folds. The differences are taken as
-//! (d+ - d-) - (u+ d+ - u- d-), which keeps the small terms that 1 - u would round away
-//! down a thin arm. Block by block with a one-voxel halo, within the budget; the folded
-//! voxels are grouped into 26-connected clusters, the largest reported by size and
-//! centroid.
+//! The ball point of a voxel is p = phi d(theta, psi) = (1 - u) d. Its Jacobian by
+//! central differences of u and of the direction (one-sided where a neighbour has no
+//! value), in the chart of the ball around the voxel's own point ([`Jacobian`]), has a
+//! negative determinant where the map folds. Block by block with a one-voxel halo,
+//! within the budget; the folded voxels are grouped into 26-connected clusters, the
+//! largest reported by size and centroid.
 
 use std::collections::HashMap;
 
-use glam::DVec3;
+use glam::{DVec2, DVec3};
 use serde::{Deserialize, Serialize};
 
 use super::upwind::is_target;
@@ -57,21 +56,19 @@ pub(super) type HaloDirections<'a> =
 /// blocks `decomp` owns, outside `ball`, and group them into clusters over every part's
 /// (the counts and the kept positions are gathered, so every part returns the whole
 /// map's figures, the same as one process's); `dir_bytes` is what `dirs` holds for a
-/// block. With
-/// `refine`, `dirs` are fast directions and `refine` maps one to the direction of its
-/// stored angles, which decide wherever the fast ones could give another sign.
+/// block. Also returns the folded voxels found ([z, y, x], in block order; the first
+/// that the budget's share holds, see [`Folded::clusters_partial`]).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn folded(
     u: &dyn BlockStore<f64>,
     labels: &dyn BlockStore<u8>,
     dirs: HaloDirections<'_>,
-    refine: Option<fn(DVec3) -> DVec3>,
     dir_bytes: u64,
     ball: &StopBall,
     decomp: &dyn Decomposition,
     mem: MemBudget,
     progress: &dyn Progress,
-) -> Result<Folded, crate::Error> {
+) -> Result<(Folded, Vec<[u32; 3]>), crate::Error> {
     let spec = u.spec().clone();
     let blocks = decomp.owned(&spec);
     let halo = spec.chunk.map(|c| c + 2);
@@ -84,7 +81,7 @@ pub(super) fn folded(
     )?;
     progress.start("map (folded voxels)", blocks.len() as u64);
     let per_block = map_bounded(&blocks, workers, |&b| -> Result<_, GridError> {
-        let r = block(u, labels, dirs, refine, ball, &spec, b)?;
+        let r = block(u, labels, dirs, ball, &spec, b)?;
         progress.advance(1);
         Ok(r)
     })?;
@@ -129,7 +126,7 @@ pub(super) fn folded(
         f.clusters_partial = f.voxels > kept.len() as u64;
     }
     f.clusters = clusters(&kept, &spec);
-    Ok(f)
+    Ok((f, kept))
 }
 
 /// One block: (voxels measured, degenerate, the folded voxels [z, y, x]).
@@ -138,7 +135,6 @@ fn block(
     u: &dyn BlockStore<f64>,
     labels: &dyn BlockStore<u8>,
     dirs: HaloDirections<'_>,
-    refine: Option<fn(DVec3) -> DVec3>,
     ball: &StopBall,
     spec: &GridSpec,
     b: Idx3,
@@ -180,31 +176,10 @@ fn block(
                 let i = ((z + 1) * hy + (y + 1)) * hx + (x + 1);
                 let Some(p0) = point[i] else { continue };
                 let pt = |j: usize| point[j];
-                let Some(cols) = columns(pt, p0, i, strides) else {
+                let Some(jac) = columns(pt, p0, i, strides) else {
                     continue;
                 };
-                let mut det = cols[0].dot(cols[1].cross(cols[2]));
-                if let Some(f) = refine {
-                    // The fast directions differ from the stored angles' by about 1e-7;
-                    // where that could change the sign, the stored angles decide.
-                    // Each column moves by at most e = 4 REFINE_EPS (two directions, and
-                    // u times two); the determinant by the terms of first, second and
-                    // third order in e.
-                    let e = 4.0 * REFINE_EPS;
-                    let bound = e
-                        * (cols[1].cross(cols[2]).length()
-                            + cols[2].cross(cols[0]).length()
-                            + cols[0].cross(cols[1]).length())
-                        + e * e * (cols[0].length() + cols[1].length() + cols[2].length())
-                        + e * e * e;
-                    if det.abs() <= bound {
-                        let rp = |j: usize| point[j].map(|(uu, d)| (uu, f(d)));
-                        let r0 = (p0.0, f(p0.1));
-                        if let Some(c) = columns(rp, r0, i, strides) {
-                            det = c[0].dot(c[1].cross(c[2]));
-                        }
-                    }
-                }
+                let det = jac.det();
                 measured += 1;
                 if det < 0.0 {
                     folded.push(g.map(|c| c as u32));
@@ -218,21 +193,75 @@ fn block(
     Ok((measured, degenerate, folded))
 }
 
-/// Bound on how far a fast direction lies from its stored angles' (see [`folded`]).
-const REFINE_EPS: f64 = 1e-6;
+/// The Jacobian of the map x -> (u, direction) at a voxel with unit direction d0, by
+/// central differences in a chart of the ball around the voxel's point: the
+/// neighbours' directions projected stereographically onto the plane tangent at d0
+/// (theta and psi measured about d0 would do as well; about the z axis the chart's
+/// poles and psi's seam would be in the way) and 1 - u along the radius. The frame (e1, e2, d0) is right-handed, so
+/// the determinant has the sign of the ball point p = (1 - u) d's Jacobian, the chart
+/// being orientation-preserving.
+///
+/// Why not the differences of p itself: down a thin arm neighbouring directions differ
+/// by 1e-5 to 1e-10 radians and u by 1e-17 per voxel, and the chord between two
+/// points of a sphere of radius 1 - u has a part along d0 of |d - d0|^2 / 2 that differs
+/// between the two sides (1e-12 where the directions are 1e-5 apart): far more than the
+/// differences of u, so the radial row of those differences is the sphere's curvature,
+/// not the map (and their sum in f64 rounds at 1e-16 besides). In the chart the radial
+/// row is the differences of u alone.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Jacobian {
+    /// The columns d / d x, d y, d z (world order), each (e1, e2, radial).
+    pub cols: [DVec3; 3],
+}
 
-/// The Jacobian's columns d p / d x, d y, d z (world order) at halo voxel `i` with point
-/// `p0` = (u, direction), from its neighbours `pt(j)`: central differences, one-sided
-/// where a neighbour has no value; None where an axis has neither. The halo's axes are
-/// z, y, x (`strides`).
+impl Jacobian {
+    /// The determinant.
+    #[must_use]
+    pub fn det(&self) -> f64 {
+        let [c0, c1, c2] = self.cols;
+        c0.dot(c1.cross(c2))
+    }
+
+    /// The determinant over the product of the columns' lengths (-1 to 1; 0 where a
+    /// column is zero): how far from folding, whatever the map's scale there.
+    #[must_use]
+    pub fn relative(&self) -> f64 {
+        let n: f64 = self.cols.iter().map(|c| c.length()).product();
+        if n > 0.0 && n.is_finite() {
+            self.det() / n
+        } else {
+            0.0
+        }
+    }
+}
+
+/// The Jacobian at halo voxel `i` with point `p0` = (u, unit direction), from its
+/// neighbours `pt(j)`: central differences, one-sided where a neighbour has no value;
+/// None where an axis has neither. The halo's axes are z, y, x (`strides`).
 #[inline]
-fn columns(
+pub(super) fn columns(
     pt: impl Fn(usize) -> Option<(f64, DVec3)>,
     p0: (f64, DVec3),
     i: usize,
     strides: [usize; 3],
-) -> Option<[DVec3; 3]> {
-    let diff = |a: (f64, DVec3), b: (f64, DVec3)| (b.1 - a.1) - (b.0 * b.1 - a.0 * a.1);
+) -> Option<Jacobian> {
+    let d0 = p0.1;
+    let e1 = d0.any_orthonormal_vector();
+    let e2 = d0.cross(e1);
+    // The chart: the stereographic projection from -d0 onto the plane tangent at d0
+    // (conformal, orientation-preserving, the identity at d0; no trigonometry), from e
+    // = d - d0, which keeps the differences' relative precision: the projection of d
+    // is its tangent part over (1 + d . d0) / 2 = 1 - |e|^2 / 4.
+    let chart = |(u, d): (f64, DVec3)| {
+        let e = d - d0;
+        let w = DVec2::new(e.dot(e1), e.dot(e2));
+        (w / (1.0 - 0.25 * e.length_squared()), u)
+    };
+    let diff = |a: (f64, DVec3), b: (f64, DVec3)| {
+        let ((wa, ua), (wb, ub)) = (chart(a), chart(b));
+        let w = wb - wa;
+        DVec3::new(w.x, w.y, ua - ub)
+    };
     let mut cols = [DVec3::ZERO; 3];
     for (k, col) in cols.iter_mut().enumerate() {
         let s = strides[2 - k];
@@ -243,11 +272,11 @@ fn columns(
             (None, None) => return None,
         };
     }
-    Some(cols)
+    Some(Jacobian { cols })
 }
 
 /// The root of `i` in the union-find forest `parent` (halving the path).
-fn root(parent: &mut [usize], mut i: usize) -> usize {
+pub(super) fn root(parent: &mut [usize], mut i: usize) -> usize {
     while parent[i] != i {
         parent[i] = parent[parent[i]];
         i = parent[i];
@@ -308,6 +337,58 @@ fn clusters(voxels: &[[u32; 3]], spec: &GridSpec) -> Vec<FoldCluster> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Down a thin arm: directions 1e-10 apart around a direction with no zero
+    /// component, u 1e-17 per voxel. The map x -> (u, d) has determinant a^2 c > 0
+    /// in the chart everywhere; the differences of p = (1 - u) d have parts along d0
+    /// (1e-17) far below the rounding of the components' differences (1e-16).
+    #[test]
+    #[allow(clippy::many_single_char_names)] // the names of the formulas and index arithmetic (p, q points; h step; k stages; b block; i, j voxels; u, d fields)
+    fn the_determinant_keeps_its_sign_down_a_thin_arm() {
+        let d0 = DVec3::new(1.0, 2.0, 3.0).normalize();
+        let e1 = d0.any_orthogonal_vector().normalize();
+        let e2 = d0.cross(e1);
+        let (a, b, c) = (1e-10, 0.7e-10, 1e-17);
+        let (mut naive_negative, mut checked) = (0, 0);
+        for s in 0..200 {
+            let o = DVec3::new(
+                f64::from(s) * 0.37,
+                f64::from(s) * 0.11,
+                f64::from(s) * 0.23,
+            );
+            let point = |x: f64, y: f64, z: f64| {
+                let (x, y, z) = (x + o.x, y + o.y, z + o.z);
+                let d = (d0 + e1 * (a * x + b * z) + e2 * (a * y)).normalize();
+                (c * (1000.0 - z), d)
+            };
+            let pts: Vec<Option<(f64, DVec3)>> = (0..27)
+                .map(|i| {
+                    let (z, y, x) = (i / 9, (i / 3) % 3, i % 3);
+                    Some(point(
+                        f64::from(x) - 1.0,
+                        f64::from(y) - 1.0,
+                        f64::from(z) - 1.0,
+                    ))
+                })
+                .collect();
+            let jac = columns(|j| pts[j], pts[13].expect("set"), 13, [9, 3, 1]).expect("set");
+            let det = jac.det();
+            let want = (2.0 * a) * (2.0 * a) * (2.0 * c);
+            assert!((det - want).abs() < 1e-3 * want, "{det} against {want}");
+            // The columns as plain differences of (1 - u) d: their sign is noise.
+            let p = |i: usize| pts[i].map(|(u, d)| d * (1.0 - u)).expect("set");
+            let cols = [p(14) - p(12), p(16) - p(10), p(22) - p(4)];
+            if cols[0].dot(cols[1].cross(cols[2])) < 0.0 {
+                naive_negative += 1;
+            }
+            checked += 1;
+        }
+        assert_eq!(checked, 200);
+        assert!(
+            naive_negative > 10,
+            "plain differences folded {naive_negative} times"
+        );
+    }
 
     #[test]
     #[allow(clippy::float_cmp)] // means of small integers: exact

@@ -31,6 +31,7 @@ mod folds;
 pub mod inverse;
 mod squeeze;
 mod stage;
+mod unfold;
 pub mod upwind;
 
 use serde::{Deserialize, Serialize};
@@ -43,6 +44,7 @@ pub use error::MapError;
 pub use exact::exact_integrator;
 pub use folds::{FoldCluster, Folded};
 pub use stage::{map, map_with};
+pub use unfold::Unfold;
 
 /// How the full-volume map is computed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -111,4 +113,8 @@ pub struct MapReport {
     /// The voxels where the map x -> ball point folds (a negative Jacobian determinant),
     /// outside the stop ball; counted in one process only (None across processes).
     pub folded: Option<Folded>,
+    /// Where the map folded: the directions moved around the folds before `folded`
+    /// was counted (None where nothing folded).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unfold: Option<Unfold>,
 }

@@ -8,6 +8,7 @@ use super::angles::Angles;
 use super::exact::exact;
 use super::folds::{folded, Folded, HaloDirections};
 use super::squeeze::SQUEEZE_BELOW;
+use super::unfold::{unfold, Unfold};
 use super::upwind::is_set;
 use super::upwind::{self, Directions, TransportStats};
 use super::{exact::exact_integrator, Hybrid, MapError, MapMethod, MapOptions, MapReport};
@@ -85,7 +86,7 @@ pub fn map_with(
                     Some(&dirs),
                 )?;
                 let seconds = t.elapsed().as_secs_f64();
-                let counts = angles.finish(run, &labels, None, opts.mem, progress, decomp)?;
+                let counts = angles.finish(&labels, None, opts.mem, progress, decomp)?;
                 let folded = upwind_folds(
                     run,
                     &spec,
@@ -96,12 +97,7 @@ pub fn map_with(
                     &dirs,
                     traced.dirs.as_ref(),
                 )?;
-                let fraction = traced.voxels as f64 / counts.0.max(1) as f64;
-                let hybrid = Hybrid {
-                    squeeze_below: SQUEEZE_BELOW,
-                    traced: traced.voxels,
-                    traced_fraction: fraction,
-                };
+                let hybrid = Hybrid::of(traced.voxels, counts.0);
                 (
                     Some(s),
                     Some(traced.stops),
@@ -117,11 +113,16 @@ pub fn map_with(
                     run, opts, &labels, &angles, &ball, &boundary, progress, decomp, None,
                 )?;
                 let seconds = t.elapsed().as_secs_f64();
-                let counts = angles.finish(run, &labels, None, opts.mem, progress, decomp)?;
+                let counts = angles.finish(&labels, None, opts.mem, progress, decomp)?;
+                decomp.barrier()?;
                 let folded = exact_folds(run, &spec, decomp, &ball, opts, progress)?;
                 (None, Some(traced.stops), None, seconds, counts, folded)
             }
         };
+    let (folded, unfold) = unfold_and_count(run, &spec, decomp, &ball, opts, progress, folded)?;
+    // theta and psi are whole (unfolded too): publish them.
+    run.commit_image("theta")?;
+    run.commit_image("psi")?;
     let _ = std::fs::remove_dir_all(&scratch);
     let (upwind_stats, stops, hybrid, (voxels, mapped)) =
         totals(decomp, upwind_stats, stops, hybrid, (voxels, mapped))?;
@@ -137,9 +138,21 @@ pub fn map_with(
         stops,
         seconds_directions,
         folded,
+        unfold,
     };
     run.record_stage("map", t0.elapsed().as_secs_f64(), opts, &report)?;
     Ok(report)
+}
+
+impl Hybrid {
+    /// `traced` voxels of `voxels`, where the upwind map squeezes.
+    fn of(traced: u64, voxels: u64) -> Self {
+        Self {
+            squeeze_below: SQUEEZE_BELOW,
+            traced,
+            traced_fraction: traced as f64 / voxels.max(1) as f64,
+        }
+    }
 }
 
 /// The stop ball of the run's map. The stop radius is the map's option here: its
@@ -299,15 +312,55 @@ fn upwind_folds(
     progress: &dyn Progress,
     dirs: &Directions,
     kept: Option<&HashMap<u64, DVec3>>,
-) -> Result<Option<Folded>, crate::Error> {
+) -> Result<FoldsFound, crate::Error> {
     let kept_everywhere = decomp.sum_u64(&[u64::from(kept.is_none())])?.first() == Some(&0);
     match kept {
         Some(kept) if kept_everywhere => {
             let kept = with_neighbours_traced(spec, decomp, kept)?;
             hybrid_folds(run, spec, decomp, ball, opts, progress, dirs, &kept)
         }
-        _ => exact_folds(run, spec, decomp, ball, opts, progress),
+        _ => {
+            decomp.barrier()?;
+            exact_folds(run, spec, decomp, ball, opts, progress)
+        }
     }
+}
+
+/// Where the map folds, move the directions around the folds ([`unfold`]) and count
+/// the folded voxels again from the stored angles. Nothing folded: the count as it is.
+#[allow(clippy::too_many_arguments)]
+fn unfold_and_count(
+    run: &RunDir,
+    spec: &GridSpec,
+    decomp: &dyn Decomposition,
+    ball: &StopBall,
+    opts: &MapOptions,
+    progress: &dyn Progress,
+    folded: FoldsFound,
+) -> Result<(Option<Folded>, Option<Unfold>), crate::Error> {
+    let Some((f, positions)) = folded else {
+        return Ok((None, None));
+    };
+    if f.voxels == 0 {
+        return Ok((Some(f), None));
+    }
+    // The staged angles are read whole: every part has written its blocks.
+    decomp.barrier()?;
+    let (theta, psi) = (
+        run.open_staged_image::<f64>("theta")?,
+        run.open_staged_image::<f64>("psi")?,
+    );
+    let u = run.open_image::<f64>("u")?;
+    let labels = run.open_image::<u8>("labels")?;
+    let mut report = unfold(
+        &u, &labels, &theta, &psi, ball, &positions, decomp, progress,
+    )?;
+    report.folded_before = f.voxels;
+    decomp.barrier()?;
+    let t = Instant::now();
+    let after = exact_folds(run, spec, decomp, ball, opts, progress)?.map(|(f, _)| f);
+    report.seconds_recount = t.elapsed().as_secs_f64();
+    Ok((after, Some(report)))
 }
 
 /// The default map's folded voxels: from the upwind direction field (raw f32, read
@@ -323,7 +376,7 @@ fn hybrid_folds(
     progress: &dyn Progress,
     dirs: &Directions,
     traced: &HashMap<u64, DVec3>,
-) -> Result<Option<Folded>, crate::Error> {
+) -> Result<FoldsFound, crate::Error> {
     let halo = |b: Idx3| -> Result<Vec<Option<DVec3>>, GridError> {
         let d = dirs.read_halo_of(b, 1)?;
         let st = spec.block_start(b).map(|c| c as i64 - 1);
@@ -349,10 +402,11 @@ fn hybrid_folds(
             })
             .collect())
     };
-    folds_with(run, spec, decomp, ball, opts, progress, 12, None, &halo)
+    folds_with(run, spec, decomp, ball, opts, progress, 12, &halo)
 }
 
-/// The exact map's folded voxels, from the stored f64 angles.
+/// The folded voxels from the stored f64 angles (staged, not yet published; every
+/// part has written its blocks).
 fn exact_folds(
     run: &RunDir,
     spec: &GridSpec,
@@ -360,10 +414,10 @@ fn exact_folds(
     ball: &StopBall,
     opts: &MapOptions,
     progress: &dyn Progress,
-) -> Result<Option<Folded>, crate::Error> {
+) -> Result<FoldsFound, crate::Error> {
     let (theta, psi) = (
-        run.open_image::<f64>("theta")?,
-        run.open_image::<f64>("psi")?,
+        run.open_staged_image::<f64>("theta")?,
+        run.open_staged_image::<f64>("psi")?,
     );
     let halo = |b: Idx3| -> Result<Vec<Option<DVec3>>, GridError> {
         let th = theta.read_block_halo(b, 1, f64::NAN)?.data;
@@ -374,7 +428,7 @@ fn exact_folds(
             .map(|(&t, &p)| (t.is_finite() && p.is_finite()).then(|| crate::trace::unit(t, p)))
             .collect())
     };
-    folds_with(run, spec, decomp, ball, opts, progress, 16, None, &halo)
+    folds_with(run, spec, decomp, ball, opts, progress, 16, &halo)
 }
 
 /// The folded voxels ([`folded`]) of the whole map, counted over the blocks `decomp`
@@ -390,9 +444,8 @@ fn folds_with(
     opts: &MapOptions,
     progress: &dyn Progress,
     bytes_per_voxel: u64,
-    refine: Option<fn(DVec3) -> DVec3>,
     dirs: HaloDirections<'_>,
-) -> Result<Option<Folded>, crate::Error> {
+) -> Result<FoldsFound, crate::Error> {
     let u = run.open_image::<f64>("u")?;
     let labels = run.open_image::<u8>("labels")?;
     let halo = crate::math::volume(spec.chunk.map(|c| c + 2));
@@ -400,7 +453,6 @@ fn folds_with(
         &u,
         &labels,
         dirs,
-        refine,
         halo * (bytes_per_voxel + 24),
         ball,
         decomp,
@@ -408,6 +460,9 @@ fn folds_with(
         progress,
     )?))
 }
+
+/// The folded voxels counted ([`folded`]) and the first of their positions.
+type FoldsFound = Option<(Folded, Vec<[u32; 3]>)>;
 
 /// `dir`, emptied of what an earlier map left or created.
 fn fresh_dir(dir: &Path) -> Result<(), GridError> {

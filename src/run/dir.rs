@@ -329,6 +329,16 @@ impl RunDir {
             })
     }
 
+    /// Open the image staged by [`RunDir::create_image_staged`], not yet committed.
+    pub fn open_staged_image<T: Scalar>(&self, name: &str) -> Result<ZarrStore<T>, crate::Error> {
+        let spec = self.grid()?;
+        Ok(ZarrStore::open(
+            &self.root,
+            &format!("/{name}.partial/0"),
+            spec,
+        )?)
+    }
+
     /// Open the array of image `name`.
     pub fn open_image<T: Scalar>(&self, name: &str) -> Result<ZarrStore<T>, crate::Error> {
         let spec = self.grid()?;
