@@ -1,11 +1,13 @@
-//! The sub-voxel boundary of mesh runs: the crossings the voxelizer stores (`cuts`)
-//! against the exact sphere, and the solve's second-order accuracy on concentric
-//! spheres built from a mesh (the label-volume ball keeps the staircase: tests/solve.rs).
+//! The sub-voxel boundary of mesh and molecule runs: the crossings the voxelizer stores
+//! (`cuts`) against the exact sphere, and the solve's second-order accuracy on
+//! concentric spheres built from a mesh and from one atom (the label-volume ball keeps
+//! the staircase: tests/solve.rs).
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
 use harmap::grid::BlockStore;
+use harmap::input::InputOptions;
 use harmap::input::TriMesh;
 use harmap::math::Vec3;
 use harmap::pipeline::{voxelize_new_run, Source};
@@ -15,6 +17,7 @@ use harmap::solve::driver::{Method, StopReason};
 use harmap::solve::{solve, SolveOptions};
 use harmap::voxelize::cuts::{arm, LEVELS};
 use harmap::voxelize::labels::{BOUNDARY, CENTER, INTERIOR, LAYER1};
+use harmap::voxelize::spheres::MolSurface;
 use harmap::voxelize::VoxelizeOptions;
 
 use crate::common::read_labels;
@@ -276,6 +279,78 @@ fn concentric_mesh_spheres_are_second_order() {
     eprintln!("N, RMS, max: {a:?} {b:?}; RMS falls {per_doubling:.2}x per doubling");
     assert!(per_doubling >= 3.5, "{a:?} {b:?}: {per_doubling}");
     assert!(a.1 < 0.01 && b.1 < 0.003, "{a:?} {b:?}");
+}
+
+/// A molecule run of concentric spheres about `n` voxels across: one atom of radius 10
+/// at the origin (an `.xyzr` file) whose `surface` is the outer sphere (the vdW ball and
+/// the SES are the atom's ball, the SAS its ball grown by the probe of 1.4), on an odd
+/// grid about it, with the center ball of `R / 4.5` at its center. Returns the run, R
+/// and the sink radius in voxels.
+fn one_atom(dir: &Path, n: u64, surface: MolSurface) -> (PathBuf, f64, f64) {
+    let xyzr = dir.join("one-atom.xyzr");
+    std::fs::write(&xyzr, "0 0 0 10\n").unwrap();
+    let probe = 1.4;
+    // The grid spans the atom's ball grown by the probe (SAS, SES) or its ball (vdW).
+    let reach = if surface == MolSurface::Vdw {
+        10.0
+    } else {
+        10.0 + probe
+    };
+    let outer = if surface == MolSurface::Sas {
+        10.0 + probe
+    } else {
+        10.0
+    };
+    let odd = {
+        let k = (0.9 * n as f64 * reach / outer).ceil() as u64;
+        k + 1 - k % 2
+    };
+    let h = 2.0 * reach / (odd as f64 - 0.5);
+    let big_r = outer / h;
+    let r0 = big_r / 4.5;
+    let opts = VoxelizeOptions {
+        spacing: Some(h),
+        center: Some([0.0; 3]),
+        center_radius: r0,
+        chunk: 32,
+        surface,
+        probe,
+        ..VoxelizeOptions::default()
+    };
+    let out = dir.join(format!("atom{n}-{surface:?}.harmap"));
+    let iopts = InputOptions::default();
+    voxelize_new_run(&Source::File(&xyzr, &iopts), &opts, &out, true, &Silent).unwrap();
+    assert!(out.join("cuts").exists(), "a molecule run has cuts");
+    (out, big_r, r0)
+}
+
+/// Solve the one-atom spheres at N and return N, the RMS and the largest error.
+fn atom_error(dir: &Path, n: u64, surface: MolSurface) -> (f64, f64, f64) {
+    let (run, big_r, r0) = one_atom(dir, n, surface);
+    solve_run(&run, Method::Multigrid);
+    let (rms, max, _) = errors(&run, big_r, r0);
+    (big_r / 0.45, rms, max)
+}
+
+#[test]
+fn concentric_spheres_from_one_atom_are_second_order() {
+    // The same analytic phi as the mesh spheres, the outer sphere now the molecular
+    // surface of one atom: exact chords for the vdW and SAS balls, the probe balls'
+    // first contact (sphere tracing over the sampled probe centers) for the SES.
+    let dir = tempfile::tempdir().unwrap();
+    for surface in [MolSurface::Vdw, MolSurface::Sas, MolSurface::Ses] {
+        let a = atom_error(dir.path(), 33, surface);
+        let b = atom_error(dir.path(), 65, surface);
+        let per_doubling = (a.1 / b.1).powf(2f64.ln() / (b.0 / a.0).ln());
+        eprintln!(
+            "{surface:?}: N, RMS, max: {a:?} {b:?}; RMS falls {per_doubling:.2}x per doubling"
+        );
+        assert!(
+            per_doubling >= 3.5,
+            "{surface:?}: {a:?} {b:?}: {per_doubling}"
+        );
+        assert!(a.1 < 0.01 && b.1 < 0.003, "{surface:?}: {a:?} {b:?}");
+    }
 }
 
 /// The same run solved on the staircase (its `cuts` removed): phi = 1 on the boundary

@@ -1,5 +1,6 @@
 //! Where the true boundary crosses the arms of the solve's stencil: the array `cuts`
-//! (docs/format.md), for inputs whose surface is known exactly (triangle meshes).
+//! (docs/format.md), for inputs whose surface is known exactly (triangle meshes here,
+//! molecules in [`super::mol_cuts`]).
 //!
 //! An arm is the segment from the center of a solid voxel that is not in the center
 //! ball (an unknown of the solve) to the center of one of its six neighbours. It is cut
@@ -98,7 +99,6 @@ type Tri = [[f64; 3]; 3];
 
 /// Write the cut arms of every block of `labels` into `out`; returns the number of
 /// voxels with a cut arm and the number of arms to the exterior that met no triangle.
-#[allow(clippy::too_many_lines)] // one block: bin, cross, and pack in one pass
 pub fn mesh_cuts(
     mesh: &TriMesh,
     labels: &dyn BlockStore<u8>,
@@ -119,9 +119,37 @@ pub fn mesh_cuts(
         })
         .collect();
     let bins = bin_by_block(&spec, &tris);
+    cut_blocks(labels, ball, out, workers, progress, |b| {
+        crossings(&spec, b, &tris, &bins[block_id(&spec, b)])
+    })
+}
+
+/// Where the true boundary crosses the arms of one block's voxels.
+pub(super) trait BlockCrossings {
+    /// The fraction in `[0, 1]` of the arm from the solid voxel `g` (the block's voxel
+    /// `local`) along grid axis `a` (`up`: towards +) at which the arm leaves the solid,
+    /// or `None` when the surface does not cross it there.
+    fn arm(&self, local: [usize; 3], g: [i64; 3], a: usize, up: bool) -> Option<f64>;
+}
+
+/// Write the cut arms of every block of `labels` into `out`, the crossings with the
+/// surface from what `prepare` builds for a block, those with the center ball from its
+/// sphere; returns the number of voxels with a cut arm and the number of arms to the
+/// exterior that met no surface (held at the staircase, `theta = 1`).
+#[allow(clippy::too_many_lines)] // one block: its arms in one pass
+pub(super) fn cut_blocks<C: BlockCrossings>(
+    labels: &dyn BlockStore<u8>,
+    ball: CenterBall,
+    out: &dyn BlockStore<u64>,
+    workers: usize,
+    progress: &dyn Progress,
+    prepare: impl Fn(Idx3) -> C + Sync,
+) -> Result<(u64, u64), crate::Error> {
+    let spec = labels.spec().clone();
     let blocks = spec.block_indices();
     progress.start("voxelize: boundary crossings", blocks.len() as u64);
     let parts = map_bounded(&blocks, workers, |&b| -> Result<(u64, u64), crate::Error> {
+        crate::progress::check_interrupt(progress)?;
         let r = labels.read_block_halo(b, 1, EXTERIOR)?;
         let s = spec.block_shape(b).map(|c| c as usize);
         let start = spec.block_start(b).map(|c| c as i64);
@@ -133,7 +161,7 @@ pub fn mesh_cuts(
             && r.data.iter().any(|&l| l == BOUNDARY || l == INTERIOR);
         let (mut cut, mut missed) = (0u64, 0u64);
         if needs {
-            let rows = crossings(&spec, b, &tris, &bins[block_id(&spec, b)]);
+            let rows = prepare(b);
             for z in 0..s[0] {
                 for y in 0..s[1] {
                     for x in 0..s[2] {
@@ -156,13 +184,13 @@ pub fn mesh_cuts(
                                 if nl == CENTER {
                                     arms[k] = sphere_arm(&ball, g, a);
                                 } else if outside(nl) {
-                                    let local = [z, y, x];
-                                    let row = rows.row(a, local);
-                                    let t = nearest(row, g[a] as f64, up);
+                                    let t = rows.arm([z, y, x], g, a, up);
                                     if t.is_none() {
                                         missed += 1;
                                     }
-                                    arms[k] = t.unwrap_or(1.0);
+                                    // A crossing at the voxel's own center is the
+                                    // shortest arm, not an uncut one.
+                                    arms[k] = t.unwrap_or(1.0).max(f64::MIN_POSITIVE);
                                 }
                             }
                         }
@@ -181,6 +209,12 @@ pub fn mesh_cuts(
     })?;
     progress.finish();
     Ok(parts.iter().fold((0, 0), |(a, m), &(c, n)| (a + c, m + n)))
+}
+
+impl BlockCrossings for Rows {
+    fn arm(&self, local: [usize; 3], g: [i64; 3], a: usize, up: bool) -> Option<f64> {
+        nearest(self.row(a, local), g[a] as f64, up)
+    }
 }
 
 /// The distance from `c` to the nearest crossing of `row` within one voxel in the

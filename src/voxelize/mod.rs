@@ -10,7 +10,9 @@
 //!    grids [`compact`]) or
 //!    refused ([`topology`] decides which, from `--topology` and the input's own genus);
 //! 4. the center: the deepest voxel ([`center`]) or `--center` ([`center_ball`]);
-//! 5. the labels written to `RUN/labels/0` ([`classify`]).
+//! 5. the labels written to `RUN/labels/0` ([`classify`]);
+//! 6. for meshes and molecules, where the true surface crosses the solve's stencil
+//!    ([`cuts`], [`mol_cuts`]).
 //!
 //! [`stage`] runs them in order; [`prepare`] fits the grid to the shape first.
 
@@ -28,6 +30,7 @@ mod euler;
 mod from_volume;
 mod grid_fit;
 pub mod mesh_genus;
+mod mol_cuts;
 mod options;
 mod prepare;
 mod probe_band;

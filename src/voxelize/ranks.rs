@@ -32,12 +32,15 @@ enum Request {
 }
 
 /// What the solid pass counts beside the solid.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Default)]
 pub struct SolidCounts {
     /// Rows whose crossings did not sum to zero (meshes; over all ranks).
     pub unclosed: u64,
     /// Cavities of the probe-center space whose probes were left out (the SES).
     pub probe_cavities: u64,
+    /// The SES's probe centers as the pass found them, for the boundary crossings
+    /// (rank 0 keeps them; the other ranks drop theirs).
+    pub probes: Option<spheres::ProbeSpace>,
 }
 
 /// The solid of `shape` (1 inside, 0 outside) into `solid`, every block of it: on MPI
@@ -141,7 +144,7 @@ fn solid_blocks(
             from_volume::volume_solid(v, opts.padding, solid, workers, progress, decomp)?;
         }
         (Shape::Molecule(m), _) => {
-            let cav = spheres::molecule_solid(
+            let (cav, probes) = spheres::molecule_solid(
                 m,
                 opts.surface,
                 opts.probe,
@@ -151,6 +154,7 @@ fn solid_blocks(
                 decomp,
             )?;
             out.probe_cavities = cav.count;
+            out.probes = probes;
         }
         (Shape::Mesh(_), None) => {
             return Err(GridError::Ranks(

@@ -49,10 +49,19 @@ pub enum MolSurface {
     Ses,
 }
 
+/// The SES's balls and which of their samples are probe centers in the solvent, as the
+/// solid pass found them.
+pub struct ProbeSpace {
+    /// The atoms with their SAS spheres' samples.
+    pub(super) balls: Balls,
+    /// Which samples are free, and which of those the solvent reaches.
+    pub(super) access: (Vec<Access>, Free),
+}
+
 /// Write the solid of `mol` (1 inside, 0 outside) into `solid`, block by block (the
 /// blocks `decomp` gives this process). For the SES, returns the cavities of the
 /// probe-center space whose probes were left out (see [`super::solvent`]), which every
-/// process finds alike.
+/// process finds alike, and the probe centers.
 pub fn molecule_solid(
     mol: &Molecule,
     surface: MolSurface,
@@ -61,7 +70,7 @@ pub fn molecule_solid(
     workers: usize,
     progress: &dyn Progress,
     decomp: &dyn Decomposition,
-) -> Result<Cavities, GridError> {
+) -> Result<(Cavities, Option<ProbeSpace>), GridError> {
     let spec = solid.spec().clone();
     let centers: Vec<DVec3> = mol.atoms.iter().map(|a| a.pos).collect();
     let radii: Vec<f64> = mol.atoms.iter().map(|a| a.radius).collect();
@@ -92,7 +101,8 @@ pub fn molecule_solid(
         Ok::<_, GridError>(())
     })?;
     progress.finish();
-    Ok(cavities)
+    let probes = (surface == MolSurface::Ses).then_some(ProbeSpace { balls, access });
+    Ok((cavities, probes))
 }
 
 #[allow(clippy::too_many_lines)] // one block's solid: the atoms, their samples and the fill share the buffers
@@ -100,7 +110,7 @@ fn block_solid(
     spec: &GridSpec,
     b: Idx3,
     balls: &Balls,
-    (access, free): &(Vec<Access>, Free),
+    af: &(Vec<Access>, Free),
     grow: f64,
     surface: MolSurface,
     use_band: bool,
@@ -131,38 +141,16 @@ fn block_solid(
     // Probe centers within one probe radius of the block (SES only): free samples of
     // the SAS spheres that face the solvent; and those on cavity walls, which tell the
     // voxels in a cavity's probe-center space.
-    let (mut pts, mut cav): (Vec<[f64; 3]>, Vec<[f64; 3]>) = (Vec::new(), Vec::new());
-    if surface == MolSurface::Ses {
-        let (plo, phi) = (lo - DVec3::splat(probe), hi + DVec3::splat(probe));
-        let mut cand = Vec::new();
-        grid.near(
-            plo - DVec3::splat(rmax + probe),
-            phi + DVec3::splat(rmax + probe),
-            &mut cand,
-        );
-        for &i in &cand {
-            let i = i as usize;
-            let (c, big) = (centers[i], balls.sas_radius(i));
-            // The sphere must come within the grown box.
-            let nearest = c.clamp(plo, phi);
-            if (nearest - c).length() > big {
-                continue;
-            }
-            let unit = balls.unit_sphere(i);
-            // The free samples, found by the probe-space pass.
-            for k in free.samples(i) {
-                let q = c + big * unit[k];
-                if q.cmplt(plo).any() || q.cmpgt(phi).any() {
-                    continue;
-                }
-                if access[i].has(k) {
-                    pts.push(q.to_array());
-                } else {
-                    cav.push(q.to_array());
-                }
-            }
-        }
-    }
+    let (pts, cav) = if surface == MolSurface::Ses {
+        probe_centers(
+            balls,
+            af,
+            lo - DVec3::splat(probe),
+            hi + DVec3::splat(probe),
+        )
+    } else {
+        (Vec::new(), Vec::new())
+    };
     let tree = (!pts.is_empty()).then(|| ImmutableKdTree::<f64, 3>::new_from_slice(&pts));
     // Cavities are small: only voxels in the box of their walls grown by the probe ask.
     let cav_box = cav.iter().fold(
@@ -213,6 +201,44 @@ fn block_solid(
         });
     }
     out
+}
+
+/// The probe centers in the box `plo..phi`: the free samples of the SAS spheres that
+/// face the solvent, and those on cavity walls (which tell the voxels in a cavity's
+/// probe-center space).
+pub(super) fn probe_centers(
+    balls: &Balls,
+    (access, free): &(Vec<Access>, Free),
+    plo: DVec3,
+    phi: DVec3,
+) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+    let (mut pts, mut cav) = (Vec::new(), Vec::new());
+    let mut cand = Vec::new();
+    let reach = DVec3::splat(balls.rmax + balls.probe);
+    balls.grid.near(plo - reach, phi + reach, &mut cand);
+    for &i in &cand {
+        let i = i as usize;
+        let (c, big) = (balls.centers[i], balls.sas_radius(i));
+        // The sphere must come within the box.
+        let nearest = c.clamp(plo, phi);
+        if (nearest - c).length() > big {
+            continue;
+        }
+        let unit = balls.unit_sphere(i);
+        // The free samples, found by the probe-space pass.
+        for k in free.samples(i) {
+            let q = c + big * unit[k];
+            if q.cmplt(plo).any() || q.cmpgt(phi).any() {
+                continue;
+            }
+            if access[i].has(k) {
+                pts.push(q.to_array());
+            } else {
+                cav.push(q.to_array());
+            }
+        }
+    }
+    (pts, cav)
 }
 
 #[cfg(test)]

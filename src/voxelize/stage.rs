@@ -5,8 +5,8 @@ use std::time::Instant;
 use super::center_ball::check_center_ball;
 use super::prepare::{self, Prepared};
 use super::{
-    center, classify, closing, components, cuts, scratch_grid, spheres, topology, CenterBall,
-    InsideRule, VoxelizeError, VoxelizeOptions, VoxelizeReport,
+    center, classify, closing, components, cuts, mol_cuts, scratch_grid, spheres, topology,
+    CenterBall, InsideRule, VoxelizeError, VoxelizeOptions, VoxelizeReport,
 };
 use crate::grid::{Compression, Decomposition, Whole};
 use crate::input::Shape;
@@ -142,14 +142,14 @@ pub fn voxelize_on(
     let solid = &*solid;
 
     // 1. Solid occupancy (on MPI ranks, each rank's slab).
-    let counts = super::ranks::solid(shape, rule, opts, solid, w_solid, progress, decomp)?;
-    let unclosed = counts.unclosed;
+    let solid_pass = super::ranks::solid(shape, rule, opts, solid, w_solid, progress, decomp)?;
+    let unclosed = solid_pass.unclosed;
     if unclosed > 0 {
         warnings.push(format!(
             "{source_name}: {unclosed} rows of voxels crossed the surface an unbalanced number of times (coincident or self-intersecting faces); check the labels near them"
         ));
     }
-    let probe_cavities = counts.probe_cavities;
+    let probe_cavities = solid_pass.probe_cavities;
     lap("solid", &mut t);
 
     // 1b. Closing (before the cavities: a closing can shut the mouth of a pocket).
@@ -253,19 +253,45 @@ pub fn voxelize_on(
     let ball = CenterBall::at_voxel(center_voxel, opts.center_radius);
     let counts = classify::classify(solid, &labels, ball, w_label, progress)?;
     lap("labels", &mut t);
-    // 6. Where the mesh crosses the stencil's arms, for the solve's sub-voxel boundary.
-    if let Shape::Mesh(mesh) = shape {
+    // 6. Where the surface crosses the stencil's arms, for the solve's sub-voxel
+    // boundary (meshes and molecules; a label volume keeps the staircase).
+    let cut_worker = match shape {
+        Shape::Mesh(_) => Some(cuts::worker_bytes(c)),
+        Shape::Molecule(_) => {
+            Some(cuts::worker_bytes(c) + mol_cuts::worker_bytes(c, spec.spacing, opts.surface))
+        }
+        Shape::Volume(_) => None,
+    };
+    if let Some(bytes) = cut_worker {
         let w_cuts = opts.mem.workers(
             &what("the boundary crossings of one block"),
             held,
-            cuts::worker_bytes(c),
+            bytes,
             threads,
         )?;
         let store = run.create_image::<u64>(cuts::NAME, &spec, 0, Compression::Zstd(3))?;
-        let (_, missed) = cuts::mesh_cuts(mesh, &labels, ball, &store, w_cuts, progress)?;
+        let (_, missed) = match shape {
+            Shape::Mesh(mesh) => cuts::mesh_cuts(mesh, &labels, ball, &store, w_cuts, progress)?,
+            Shape::Molecule(m) => mol_cuts::molecule_cuts(
+                m,
+                opts.surface,
+                opts.probe,
+                solid_pass.probes.as_ref(),
+                &labels,
+                ball,
+                &store,
+                w_cuts,
+                progress,
+            )?,
+            Shape::Volume(_) => (0, 0),
+        };
         if missed > 0 {
+            let what = match shape {
+                Shape::Mesh(_) => "met no triangle (voxels the closing or the repair added)",
+                _ => "met no molecular surface (voxels the closing, the cavity fill or the repair added)",
+            };
             warnings.push(format!(
-                "{missed} stencil arms from the solid to the exterior met no triangle (voxels the closing or the repair added); the solve holds phi = 1 at those neighbours' centers"
+                "{missed} stencil arms from the solid to the exterior {what}; the solve holds phi = 1 at those neighbours' centers"
             ));
         }
         lap("crossings", &mut t);
