@@ -9,9 +9,9 @@
 //!   being the solvent's free samples of the SAS spheres ([`super::spheres`]). An arm
 //!   from a solid voxel leaves it where it first enters a probe ball: sphere tracing
 //!   the distance to the nearest probe center (1-Lipschitz, so a step of `distance -
-//!   probe` stays outside every probe ball) comes within [`NEAR`] voxels of one, and
-//!   the first contact is then found exactly among the probe centers that can reach
-//!   the rest of the arm.
+//!   probe` stays outside every probe ball) and the nearest center's own ball leave a
+//!   short rest of the arm, where the first contact is found exactly among the probe
+//!   centers that can reach it.
 //!
 //! An arm whose start the surface does not hold (a voxel the closing, the cavity fill or
 //! the topology repair added) or that meets no surface within a voxel is left at the
@@ -32,13 +32,12 @@ use crate::input::molecule::Molecule;
 use crate::math::Idx3;
 use crate::progress::Progress;
 
-/// Sphere tracing hands over to the exact contact this close (voxels) to a probe ball.
-const NEAR: f64 = 0.05;
-/// The over-relaxation of the sphere-tracing steps.
-const RELAX: f64 = 1.6;
-/// Sphere-tracing steps an arm takes at most (a grazing arm converges slowly; where it
-/// stops is then within the tolerance of the tangent point or left at the staircase).
-const STEPS: usize = 200;
+/// The rest of an arm (voxels) short enough to search for the first contact among the
+/// probe centers that can reach it: their count grows with its length.
+const SHORT: f64 = 0.25;
+/// Sphere-tracing steps an arm takes at most before that search (a grazing arm
+/// shortens slowly; the search is exact whatever the length).
+const STEPS: usize = 4;
 
 /// Bytes one worker holds beyond [`super::cuts::worker_bytes`]: the block's atoms and,
 /// for the SES, its probe centers and their tree (a few per square Angstrom of the
@@ -110,6 +109,8 @@ struct MolBlock<'a> {
     pts: Vec<[f64; 3]>,
     tree: Option<ImmutableKdTree<f64, 3>>,
     surface: MolSurface,
+    /// The last voxel asked about (SES): its free distance and nearest probe center.
+    start: std::cell::Cell<Option<([usize; 3], f64, u64)>>,
 }
 
 impl<'a> MolBlock<'a> {
@@ -154,6 +155,7 @@ impl<'a> MolBlock<'a> {
             pts,
             tree,
             surface,
+            start: std::cell::Cell::new(None),
         }
     }
 
@@ -202,23 +204,18 @@ impl<'a> MolBlock<'a> {
     }
 
     /// Where the segment `p + s h e` first enters a probe ball, from `s = 0` outside
-    /// every one. Sphere tracing, over-relaxed by [`RELAX`] (Keinert et al., "Enhanced
-    /// Sphere Tracing", 2014: a long step is kept only when the free balls about its
-    /// two ends overlap, so no probe ball lies between them), brings the segment within
-    /// [`NEAR`] voxels of a probe ball; then the exact first contact is taken over the
-    /// probe centers that can reach the rest of the segment up to the nearest ball's
-    /// entry.
-    fn probe_entry(&self, p: DVec3, e: DVec3) -> Option<f64> {
+    /// every one (`start`: the free distance at `p` in voxels and the nearest probe
+    /// center, shared by the voxel's arms). The ball about the nearest probe center
+    /// bounds the entry from above; plain sphere-tracing steps (the distance to the
+    /// nearest probe center is 1-Lipschitz, so a step of `distance - probe` enters no
+    /// probe ball) shorten the rest of the arm to [`SHORT`] voxels, or [`STEPS`]
+    /// steps; the first contact is then exact among the probe centers that can reach
+    /// that rest.
+    fn probe_entry(&self, p: DVec3, e: DVec3, start: (f64, u64)) -> Option<f64> {
         let tree = self.tree.as_ref()?;
         let h = self.spec.spacing;
         let probe = self.balls.probe;
         let at = |s: f64| p + s * h * e;
-        // The free distance at s in voxels (how far the segment may go from there
-        // without entering a probe ball), and the nearest probe center.
-        let gap = |s: f64| {
-            let n = tree.nearest_one::<SquaredEuclidean>(&at(s).to_array());
-            ((n.distance.sqrt() - probe) / h, n.item)
-        };
         // Where the segment enters the probe ball about center `k`, from `from` on.
         let entry = |k: u64, from: f64| {
             let c = DVec3::from(self.pts[k as usize]);
@@ -232,57 +229,205 @@ impl<'a> MolBlock<'a> {
             let (t1, t2) = (-b - q, -b + q);
             (t2 >= from).then_some(t1.max(from))
         };
-        let (mut s, (mut g, mut k)) = (0.0, gap(0.0));
+        let (g, k) = start;
         if g < 0.0 {
             return None; // the start is not solid (a voxel the repair added)
         }
-        let mut relax = RELAX;
+        // Free up to `lo`; some probe ball is entered by `hi` (or the arm ends there).
+        let mut lo = g;
+        let mut hi = entry(k, lo).unwrap_or(1.0).min(1.0);
         for _ in 0..STEPS {
-            if s + g > 1.0 {
-                return None; // the free ball about s holds the rest of the arm
+            if lo > 1.0 {
+                return None; // the free balls hold the whole arm
             }
-            if g < NEAR {
+            if hi - lo <= SHORT {
                 break;
             }
-            let next = (s + relax * g).min(1.0);
-            let step = next - s;
-            let (gn, kn) = gap(next);
-            if relax > 1.0 && (gn + g < step || gn < 0.0) {
-                // The two free balls do not overlap: a probe ball may lie between.
-                relax = 1.0;
-                continue;
+            let (d, k) = self.free(at(lo));
+            if d <= 0.0 {
+                break;
             }
-            (s, g, k) = (next, gn, kn);
+            lo += d / h;
+            if let Some(t) = entry(k, lo) {
+                hi = hi.min(t);
+            }
         }
-        // Free up to `lo`; the nearest center's ball is entered by `hi` at the latest.
-        let lo = s + g.max(0.0);
-        let hi = entry(k, lo).unwrap_or(1.0).min(1.0);
-        let mut best = entry(k, lo).filter(|&t| t <= 1.0);
-        if hi > lo {
-            // Any ball entered in lo..hi has its center within a probe radius of it.
-            let reach = probe + 0.5 * (hi - lo) * h;
-            let mid = at(0.5 * (lo + hi));
-            for n in tree.within_unsorted::<SquaredEuclidean>(&mid.to_array(), reach * reach) {
-                if let Some(t) = entry(n.item, lo) {
-                    if t <= hi && best.is_none_or(|b| t < b) {
-                        best = Some(t);
-                    }
+        if lo > 1.0 {
+            return None;
+        }
+        let mut best: Option<f64> = None;
+        // Any ball entered in lo..hi has its center within a probe radius of it.
+        let reach = probe + 0.5 * (hi - lo).max(0.0) * h;
+        let mid = at(0.5 * (lo + hi.max(lo)));
+        for n in tree.within_unsorted::<SquaredEuclidean>(&mid.to_array(), reach * reach) {
+            if let Some(t) = entry(n.item, lo) {
+                if t <= 1.0 && best.is_none_or(|b| t < b) {
+                    best = Some(t);
                 }
             }
         }
         best
     }
+
+    /// The free distance at `x` (to the nearest probe ball, negative inside one) and
+    /// the nearest probe center.
+    fn free(&self, x: DVec3) -> (f64, u64) {
+        self.tree.as_ref().map_or((f64::INFINITY, 0), |t| {
+            let n = t.nearest_one::<SquaredEuclidean>(&x.to_array());
+            (n.distance.sqrt() - self.balls.probe, n.item)
+        })
+    }
 }
 
 impl BlockCrossings for MolBlock<'_> {
-    fn arm(&self, _local: [usize; 3], g: [i64; 3], a: usize, up: bool) -> Option<f64> {
+    fn arm(&self, local: [usize; 3], g: [i64; 3], a: usize, up: bool) -> Option<f64> {
         #[allow(clippy::cast_sign_loss)] // a voxel of the grid
         let p = self.spec.voxel_center(g.map(|c| c as u64));
         let axis = [DVec3::Z, DVec3::Y, DVec3::X][a];
         let e = if up { axis } else { -axis };
         match self.surface {
             MolSurface::Vdw | MolSurface::Sas => self.union_exit(p, e),
-            MolSurface::Ses => self.probe_entry(p, e),
+            MolSurface::Ses => {
+                // The voxel's arms come one after another: its free distance once.
+                let start = match self.start.get() {
+                    Some((at, d, k)) if at == local => (d, k),
+                    _ => {
+                        let (d, k) = self.free(p);
+                        self.start.set(Some((local, d, k)));
+                        (d, k)
+                    }
+                };
+                self.probe_entry(p, e, (start.0 / self.spec.spacing, start.1))
+            }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::progress::Silent;
+    use crate::voxelize::solvent::solvent_access_on;
+
+    /// The first entry of `p + s h e` into any probe ball about `pts`, by brute force.
+    fn brute_entry(pts: &[[f64; 3]], probe: f64, h: f64, p: DVec3, e: DVec3) -> Option<f64> {
+        let mut best: Option<f64> = None;
+        for q in pts {
+            let d = (p - DVec3::from(*q)) / h;
+            let b = d.dot(e);
+            let disc = b * b - (d.length_squared() - (probe / h).powi(2));
+            if disc < 0.0 {
+                continue;
+            }
+            let (t1, t2) = (-b - disc.sqrt(), -b + disc.sqrt());
+            if t2 >= 0.0 && t1 <= 1.0 {
+                let t = t1.max(0.0);
+                best = Some(best.map_or(t, |b| b.min(t)));
+            }
+        }
+        best
+    }
+
+    #[test]
+    fn ses_crossings_are_the_first_probe_ball_every_arm_meets() {
+        // A loose cluster from a fixed pseudo-random sequence (crevices and pockets).
+        let mut x = 12345u64;
+        let mut next = || {
+            x = x
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let centers: Vec<DVec3> = (0..30)
+            .map(|_| DVec3::new(next(), next(), next()) * 10.0)
+            .collect();
+        let radii = vec![1.7; centers.len()];
+        let probe = 1.4;
+        let h = 0.4;
+        let balls = Balls::new(centers, radii, probe, sample_for(h));
+        let (access, free, _) = solvent_access_on(&balls, 2, &Silent, &crate::grid::Whole).unwrap();
+        let access = (access, free);
+        let spec = GridSpec {
+            shape: [48, 48, 48],
+            origin: [-2.5; 3],
+            spacing: h,
+            chunk: [16, 16, 16],
+            unit: None,
+        };
+        let (mut asked, mut cut) = (0, 0);
+        for b in spec.block_indices() {
+            let mb = MolBlock::new(&spec, b, &balls, &access, probe, MolSurface::Ses);
+            if mb.tree.is_none() {
+                continue;
+            }
+            let st = spec.block_start(b);
+            for _ in 0..200 {
+                let local = [0, 1, 2].map(|_| (next() * 16.0) as usize);
+                let g = [0, 1, 2].map(|k| (st[k] + local[k] as u64) as i64);
+                let p = spec.voxel_center(g.map(|c| c as u64));
+                if mb.free(p).0 < 0.0 {
+                    continue; // not solid
+                }
+                for a in 0..3 {
+                    for up in [false, true] {
+                        let axis = [DVec3::Z, DVec3::Y, DVec3::X][a];
+                        let e = if up { axis } else { -axis };
+                        let got = mb.arm(local, g, a, up);
+                        let want = brute_entry(&mb.pts, probe, h, p, e);
+                        asked += 1;
+                        match (got, want) {
+                            (Some(t), Some(w)) => {
+                                cut += 1;
+                                assert!((t - w).abs() < 1e-9, "{g:?} axis {a} {up}: {t} vs {w}");
+                            }
+                            (None, None) => {}
+                            _ => panic!("{g:?} axis {a} {up}: {got:?} vs {want:?}"),
+                        }
+                    }
+                }
+            }
+        }
+        // Both kinds were tried: arms that meet a probe ball and arms that do not.
+        assert!(cut > 50 && asked > cut + 50, "{asked} arms, {cut} cut");
+    }
+
+    #[test]
+    fn vdw_crossings_leave_the_union_of_the_balls() {
+        // Two overlapping balls along x: radius 2 at 0 and at 3; from the first's
+        // center along +x the union is left at 5, along -x at -2.
+        let balls = Balls::without_samples(
+            vec![DVec3::ZERO, DVec3::new(3.0, 0.0, 0.0)],
+            vec![2.0, 2.0],
+            1.4,
+        );
+        let spec = GridSpec {
+            shape: [16, 16, 32],
+            origin: [-8.0, -4.0, -4.0],
+            spacing: 0.5,
+            chunk: [16, 16, 32],
+            unit: None,
+        };
+        let mb = MolBlock::new(
+            &spec,
+            [0, 0, 0],
+            &balls,
+            &(Vec::new(), Free::default()),
+            0.0,
+            MolSurface::Vdw,
+        );
+        // Voxel x = 4.75 -> index 25.5: take 4.5 (index 25), 0.5 voxel from the exit.
+        let at = |x: f64| mb.union_exit(DVec3::new(x, 0.0, 0.0), DVec3::X);
+        assert!((at(4.5).unwrap() - 1.0).abs() < 1e-12);
+        assert!((at(4.75).unwrap() - 0.5).abs() < 1e-12);
+        assert!(
+            at(3.0).is_none(),
+            "2 Angstrom from the exit: beyond the arm"
+        );
+        // Through the overlap: from x = 1.9 the chords of both balls join.
+        assert!(at(1.9).is_none());
+        let back = |x: f64| mb.union_exit(DVec3::new(x, 0.0, 0.0), -DVec3::X);
+        assert!((back(-1.75).unwrap() - 0.5).abs() < 1e-12);
+        // Outside both balls: not solid.
+        assert!(back(-2.5).is_none());
     }
 }
