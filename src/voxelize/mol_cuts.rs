@@ -35,6 +35,9 @@ use crate::progress::Progress;
 /// The rest of an arm (voxels) short enough to search for the first contact among the
 /// probe centers that can reach it: their count grows with its length.
 const SHORT: f64 = 0.25;
+/// An entry bounded within this (voxels) is taken as it is: a tenth of the stored
+/// fraction's step (1/1023).
+const EXACT: f64 = 1e-4;
 /// Sphere-tracing steps an arm takes at most before that search (a grazing arm
 /// shortens slowly; the search is exact whatever the length).
 const STEPS: usize = 4;
@@ -235,7 +238,8 @@ impl<'a> MolBlock<'a> {
         }
         // Free up to `lo`; some probe ball is entered by `hi` (or the arm ends there).
         let mut lo = g;
-        let mut hi = entry(k, lo).unwrap_or(1.0).min(1.0);
+        let mut entered = entry(k, lo);
+        let mut hi = entered.unwrap_or(1.0).min(1.0);
         for _ in 0..STEPS {
             if lo > 1.0 {
                 return None; // the free balls hold the whole arm
@@ -249,11 +253,18 @@ impl<'a> MolBlock<'a> {
             }
             lo += d / h;
             if let Some(t) = entry(k, lo) {
-                hi = hi.min(t);
+                if t < hi {
+                    (hi, entered) = (t, Some(t));
+                }
             }
         }
         if lo > 1.0 {
             return None;
+        }
+        if let Some(t) = entered {
+            if t <= 1.0 && t - lo < EXACT {
+                return Some(t); // the entry is known to within the stored rounding
+            }
         }
         let mut best: Option<f64> = None;
         // Any ball entered in lo..hi has its center within a probe radius of it.
@@ -378,7 +389,7 @@ mod tests {
                         match (got, want) {
                             (Some(t), Some(w)) => {
                                 cut += 1;
-                                assert!((t - w).abs() < 1e-9, "{g:?} axis {a} {up}: {t} vs {w}");
+                                assert!((t - w).abs() <= EXACT, "{g:?} axis {a} {up}: {t} vs {w}");
                             }
                             (None, None) => {}
                             _ => panic!("{g:?} axis {a} {up}: {got:?} vs {want:?}"),
