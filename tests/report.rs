@@ -164,6 +164,20 @@ fn the_starfish_run_writes_a_self_contained_report_beside_its_atlas() {
                 n("/stages/trace/result/collisions/seeds")
             ),
         ),
+        (
+            "folded voxels",
+            format!(
+                "<td>folded</td><td>{}</td>",
+                n("/stages/map/result/folded/voxels")
+            ),
+        ),
+        (
+            "folded before unfolding",
+            format!(
+                "<td>folded_before</td><td>{}</td>",
+                n("/stages/map/result/unfold/folded_before")
+            ),
+        ),
     ] {
         assert!(page.contains(&needle), "{what}: {needle} not on the page");
     }

@@ -454,7 +454,31 @@ pub(super) fn map_section(p: &mut String, a: &Value) {
             ("boundary", text(at(r, "/boundary"))),
         ],
     );
-    for k in ["upwind", "stops"] {
+    // The folded voxels (negative Jacobian outside the stop ball) and the unfolding.
+    let folded = at(r, "/folded");
+    if !folded.is_null() {
+        p.push_str("<h3>folded voxels</h3>");
+        let clusters = folded
+            .get("clusters")
+            .and_then(Value::as_array)
+            .map_or_else(String::new, |c| {
+                c.iter()
+                    .take(5)
+                    .map(|k| format!("{} at {}", text(at(k, "/voxels")), text(at(k, "/center"))))
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            });
+        kv(
+            p,
+            &[
+                ("measured", text(at(folded, "/measured"))),
+                ("folded", text(at(folded, "/voxels"))),
+                ("degenerate", text(at(folded, "/degenerate"))),
+                ("largest clusters (voxels at x, y, z)", clusters),
+            ],
+        );
+    }
+    for k in ["unfold", "upwind", "stops"] {
         if let Some(v) = r.get(k).filter(|v| !v.is_null()) {
             let _ = write!(p, "<h3>{k}</h3>");
             generic(p, v);
