@@ -43,17 +43,19 @@ const EXACT: f64 = 1e-4;
 const STEPS: usize = 4;
 
 /// Bytes one worker holds beyond [`super::cuts::worker_bytes`]: the block's atoms and,
-/// for the SES, its probe centers and their tree (a few per square Angstrom of the
-/// block's SAS surface, bounded here by the block's faces at the sample spacing).
+/// for the SES, its probe centers and their tree (48 bytes each). The probe centers are
+/// the solvent-facing samples of the SAS surface through the block's box grown by the
+/// probe: counted here as two sheets across the box at the sample spacing (adk_open
+/// at 0.5 Angstrom in blocks of 64 holds 180,000 a block on average, a sheet and a
+/// half).
 #[must_use]
 pub fn worker_bytes(chunk: u64, spacing: f64, surface: MolSurface) -> u64 {
     if surface != MolSurface::Ses {
         return 8 * chunk * chunk;
     }
-    let side = chunk as f64 * spacing + 6.0;
+    let side = chunk as f64 * spacing + 2.0 * (spacing + 3.0);
     let sample = sample_for(spacing);
-    // Up to a few sheets of SAS surface through the grown box.
-    (4.0 * 6.0 * side * side / (sample * sample) * 48.0) as u64
+    (2.0 * side * side / (sample * sample) * 48.0) as u64
 }
 
 /// Write the cut arms of every block of `labels` for molecule `mol` into `out`; returns
