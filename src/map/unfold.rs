@@ -123,6 +123,9 @@ pub(super) fn unfold(
         }
         a > 0.0
     });
+    // Every part has read what it needs before any part writes its blocks: a part
+    // still reading a block another part rewrites would read a torn chunk.
+    decomp.barrier()?;
     write(theta, psi, &spec, &moves, decomp)?;
     degrees.sort_by(f64::total_cmp);
     Ok(Unfold {
