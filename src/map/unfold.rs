@@ -250,6 +250,13 @@ fn boxes(folded: &[[u32; 3]], spec: &GridSpec) -> Vec<([i64; 3], [i64; 3])> {
     out
 }
 
+/// The unit direction of `c`'s angles as stored (f64 theta and psi): what a move
+/// writes, so the Jacobians checked are those of the stored map.
+fn stored(c: DVec3) -> DVec3 {
+    let (t, p) = angles(c.normalize());
+    unit(t, p)
+}
+
 /// A box of the map in memory.
 struct Region {
     /// Its first voxel (grid z, y, x; may be off the grid).
@@ -290,8 +297,7 @@ impl Region {
         let ps = psi.read_region(lo, shape, f64::NAN)?.data;
         let grid = spec.shape;
         let n = uu.len();
-        let (mut point, mut measured, mut movable) =
-            (vec![None; n], vec![false; n], vec![false; n]);
+        let (mut point, mut target) = (vec![None; n], vec![false; n]);
         let r2 = ball.radius * ball.radius;
         for z in 0..shape[0] {
             for y in 0..shape[1] {
@@ -308,24 +314,23 @@ impl Region {
                         point[i] = Some((uu[i], unit(t, p)));
                     }
                     let c = DVec3::new(g[2] as f64, g[1] as f64, g[0] as f64);
-                    let target = is_target(lab[i]) && (c - ball.center).length_squared() > r2;
-                    let depth = (0..3)
-                        .map(|a| [z, y, x][a].min(shape[a] - 1 - [z, y, x][a]))
-                        .min()
-                        .unwrap_or(0);
-                    measured[i] = target && depth >= 1;
-                    movable[i] = target && depth >= 2 && point[i].is_some();
+                    target[i] = is_target(lab[i]) && (c - ball.center).length_squared() > r2;
                 }
             }
         }
-        Ok(Self {
+        let mut r = Self {
             origin: lo,
             shape,
             point,
-            measured,
-            movable,
+            measured: vec![false; n],
+            movable: vec![false; n],
             grid,
-        })
+        };
+        for (i, &t) in target.iter().enumerate() {
+            r.measured[i] = t && r.depth_at_least(i, 1);
+            r.movable[i] = t && r.depth_at_least(i, 2) && r.point[i].is_some();
+        }
+        Ok(r)
     }
 
     /// Strides of the box's axes z, y, x.
@@ -356,11 +361,21 @@ impl Region {
         ]
     }
 
+    /// The box coordinates [z, y, x] of box voxel `i`.
+    fn coords(&self, i: usize) -> [usize; 3] {
+        let s = self.strides();
+        [i / s[0], (i / s[1]) % self.shape[1], i % self.shape[2]]
+    }
+
     /// Whether box voxel `i` is at least `d` voxels from the box's faces.
     fn depth_at_least(&self, i: usize, d: usize) -> bool {
-        let s = self.strides();
-        let c = [i / s[0], (i / s[1]) % self.shape[1], i % self.shape[2]];
+        let c = self.coords(i);
         (0..3).all(|a| c[a] >= d && c[a] + d < self.shape[a])
+    }
+
+    /// Whether the Jacobian at box voxel `i` is measured and folds.
+    fn folds_at(&self, i: usize) -> bool {
+        self.jacobian(i).is_some_and(|jac| jac.det() < 0.0)
     }
 
     /// How the Jacobians that voxel `i` enters stand: (negative ones, the least
@@ -385,12 +400,7 @@ impl Region {
     fn untangle(mut self) -> Vec<(u64, DVec3, DVec3)> {
         let n = self.point.len();
         let start = self.point.clone();
-        let folded = |r: &Self| -> Vec<usize> {
-            (0..n)
-                .filter(|&j| r.jacobian(j).is_some_and(|jac| jac.det() < 0.0))
-                .collect()
-        };
-        let mut bad = folded(&self);
+        let mut bad: Vec<usize> = (0..n).filter(|&j| self.folds_at(j)).collect();
         let mut ring = 1;
         while !bad.is_empty() && ring <= RINGS {
             // The voxels that move: the stencils of the folded ones, grown `ring` times.
@@ -411,13 +421,7 @@ impl Region {
             watch.extend(&bad);
             watch.sort_unstable();
             watch.dedup();
-            let folded_in = |r: &Self| -> Vec<usize> {
-                watch
-                    .iter()
-                    .copied()
-                    .filter(|&j| r.jacobian(j).is_some_and(|jac| jac.det() < 0.0))
-                    .collect()
-            };
+
             let mut fewest = bad.len();
             let mut stale = 0;
             for _ in 0..SWEEPS {
@@ -425,7 +429,11 @@ impl Region {
                 for &i in &active {
                     moved |= self.improve(i, &start);
                 }
-                bad = folded_in(&self);
+                bad = watch
+                    .iter()
+                    .copied()
+                    .filter(|&j| self.folds_at(j))
+                    .collect();
                 if bad.is_empty() || !moved {
                     break;
                 }
@@ -472,9 +480,11 @@ impl Region {
                 }
                 let before = self.score(i).0;
                 for k in 0..6 {
-                    let c = d + (home - d) * 0.5f64.powi(k);
-                    let (t, p) = angles(c.normalize());
-                    let c = if k == 0 { home } else { unit(t, p) };
+                    let c = if k == 0 {
+                        home
+                    } else {
+                        stored(d + (home - d) * 0.5f64.powi(k))
+                    };
                     self.point[i] = Some((ui, c));
                     if self.score(i).0 <= before {
                         any = true;
@@ -491,8 +501,7 @@ impl Region {
 
     /// The grid's linear index of box voxel `i`.
     fn linear(&self, i: usize) -> u64 {
-        let s = self.strides();
-        let c = [i / s[0], (i / s[1]) % self.shape[1], i % self.shape[2]];
+        let c = self.coords(i);
         let g = [0, 1, 2].map(|a| (self.origin[a] + c[a] as i64) as u64);
         (g[0] * self.grid[1] + g[1]) * self.grid[2] + g[2]
     }
@@ -549,8 +558,7 @@ impl Region {
             let mut best = current;
             let mut best_d = None;
             for c in candidates {
-                let (t, p) = angles(c.normalize());
-                let c = unit(t, p);
+                let c = stored(c);
                 if c == d || (c - home).length() > trust {
                     continue;
                 }
@@ -611,9 +619,7 @@ mod tests {
     }
 
     fn folds(r: &Region) -> usize {
-        (0..r.point.len())
-            .filter(|&j| r.jacobian(j).is_some_and(|jac| jac.det() < 0.0))
-            .count()
+        (0..r.point.len()).filter(|&j| r.folds_at(j)).count()
     }
 
     #[test]

@@ -168,23 +168,22 @@ impl<'a> MolBlock<'a> {
     /// atoms' grown balls, from `s = 0` inside it.
     fn union_exit(&self, p: DVec3, e: DVec3) -> Option<f64> {
         let h = self.spec.spacing;
-        // The chords of the balls the line meets, as intervals of s.
-        let mut chords: Vec<(f64, f64)> = Vec::new();
-        for &i in &self.near {
-            let i = i as usize;
-            let r = self.balls.radii[i] + self.grow;
-            let d = p - self.balls.centers[i];
-            let b = d.dot(e) / h;
-            let c = (d.length_squared() - r * r) / (h * h);
-            let disc = b * b - c;
-            if disc <= 0.0 {
-                continue;
-            }
-            let q = disc.sqrt();
-            if -b + q > 0.0 {
-                chords.push((-b - q, -b + q));
-            }
-        }
+        // The chords of the balls the line meets (not only touches), as intervals of s.
+        let chords: Vec<(f64, f64)> = self
+            .near
+            .iter()
+            .filter_map(|&i| {
+                let i = i as usize;
+                chord(
+                    p,
+                    e,
+                    h,
+                    self.balls.centers[i],
+                    self.balls.radii[i] + self.grow,
+                )
+            })
+            .filter(|&(t1, t2)| t1 < t2 && t2 > 0.0)
+            .collect();
         // From s = 0, extend through every chord that starts before the end so far.
         let mut end = chords
             .iter()
@@ -223,15 +222,7 @@ impl<'a> MolBlock<'a> {
         let at = |s: f64| p + s * h * e;
         // Where the segment enters the probe ball about center `k`, from `from` on.
         let entry = |k: u64, from: f64| {
-            let c = DVec3::from(self.pts[k as usize]);
-            let d = (p - c) / h;
-            let b = d.dot(e);
-            let disc = b * b - (d.length_squared() - (probe / h).powi(2));
-            if disc < 0.0 {
-                return None;
-            }
-            let q = disc.sqrt();
-            let (t1, t2) = (-b - q, -b + q);
+            let (t1, t2) = chord(p, e, h, DVec3::from(self.pts[k as usize]), probe)?;
             (t2 >= from).then_some(t1.max(from))
         };
         let (g, k) = start;
@@ -290,6 +281,19 @@ impl<'a> MolBlock<'a> {
             (n.distance.sqrt() - self.balls.probe, n.item)
         })
     }
+}
+
+/// The interval of `s` (voxels) where the line `p + s h e` (`e` a unit vector) lies in
+/// the ball of radius `r` about `c`; None where it misses the ball.
+fn chord(p: DVec3, e: DVec3, h: f64, c: DVec3, r: f64) -> Option<(f64, f64)> {
+    let d = (p - c) / h;
+    let b = d.dot(e);
+    let disc = b * b - (d.length_squared() - (r / h).powi(2));
+    if disc < 0.0 {
+        return None;
+    }
+    let q = disc.sqrt();
+    Some((-b - q, -b + q))
 }
 
 impl BlockCrossings for MolBlock<'_> {
