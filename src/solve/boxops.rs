@@ -12,7 +12,7 @@
 //! Colors are by global index parity (`z + y + x` even is red), so a sweep gives the same
 //! values whatever the blocking.
 
-use super::cuts::{cut_defect_at, is_unknown, CUT};
+use super::cuts::{coarse_cut_defect_at, cut_defect_at, is_unknown, CUT};
 use super::stencil::{defect_at, defect_of, energy_term, full_weighting};
 use crate::voxelize::labels::INTERIOR;
 
@@ -25,8 +25,8 @@ pub struct BoxView<'a> {
     pub mask: &'a [u8],
     /// Right-hand side; `None` means 0.
     pub f: Option<&'a [f64]>,
-    /// The packed arms of the finest level of a run with cuts (where the mask is
-    /// [`CUT`]); `None` on coarse levels and on the staircase.
+    /// The packed arms of a level of a run with cuts (where the mask is [`CUT`]);
+    /// `None` on the staircase.
     pub cuts: Option<&'a [u64]>,
     /// Box extent `[z, y, x]`.
     pub shape: [usize; 3],
@@ -51,7 +51,11 @@ impl BoxView<'_> {
     fn cut(&self, i: usize) -> (f64, f64) {
         let (sy, sz) = self.strides();
         let cuts = self.cuts.expect("a CUT voxel on a level with cuts");
-        cut_defect_at(self.u, cuts, self.mask, i, sy, sz)
+        match self.f {
+            // A coarse level: a correction, with its right-hand side.
+            Some(f) => coarse_cut_defect_at(self.u, f[i], cuts, self.mask, i, sy, sz),
+            None => cut_defect_at(self.u, cuts, self.mask, i, sy, sz),
+        }
     }
 
     /// The defect at an unknown and the change a Jacobi step makes there (defect over
@@ -252,7 +256,7 @@ pub fn restrict(
         for y in 0..c_shape[1] {
             for x in 0..c_shape[2] {
                 let o = (z * c_shape[1] + y) * c_shape[2] + x;
-                if c_mask[o] != INTERIOR {
+                if !is_unknown(c_mask[o]) {
                     continue;
                 }
                 let g = [z, y, x].map(|v| v as i64);

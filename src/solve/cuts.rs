@@ -20,10 +20,14 @@
 //! streamlines' way down). The voxelizer clamps arms at 1/1023 voxel, which bounds
 //! the diagonal (at most about 2000 times the usual 6).
 //!
-//! Only the finest level uses the cuts; the coarse levels keep the staircase operator
-//! on the coarsened mask, an approximation of the fine operator that the V-cycle's
-//! smoothing corrects (docs/solve.md measures the convergence factor). Label volumes and
-//! molecules have no `cuts`, and their solve is the staircase, byte for byte as before.
+//! The coarse levels see the same boundary ([`super::coarsen::coarse_arms`]): coarse
+//! node `I` sits on fine node `2I`, and its arm along an axis ends where the fine arms
+//! from `2I` or from `2I ± 1` end (half their length, or half plus a half), or at a
+//! fine node between them that is fixed. Their equation is the same Shortley-Weller
+//! stencil in coarse units, for a correction that is 0 on the boundary
+//! ([`Coef::coarse`]), so the coarse-grid correction knows where the boundary is
+//! instead of seeing the staircase of the coarsened mask. Label volumes have no `cuts`,
+//! and their solve is the staircase on every level.
 
 // The stencil's terms are named as in the formula (u, b, c, k, t, w).
 #![allow(clippy::many_single_char_names)]
@@ -99,6 +103,27 @@ impl Coef {
         Self { c, b, diag }
     }
 
+    /// The coefficients of a coarse level's packed arms `p`, whose neighbours are
+    /// unknowns where `unknown` says so: a coarse level holds a correction, 0 at the
+    /// crossings, so there is no boundary part, and a cut arm reads its neighbour only
+    /// when that is fixed (it holds 0 then, except in full multigrid's coarse phase,
+    /// where it holds the problem's value there: the value at the crossing, nearly).
+    #[must_use]
+    pub fn coarse(p: u64, unknown: [bool; 6]) -> Self {
+        let mut k = Self::of(p, [INTERIOR; 6]);
+        for (a, &unknown) in unknown.iter().enumerate() {
+            let t = arm(p, a);
+            if t > 0.0 && !unknown {
+                // The other arm along the same axis.
+                let o = arm(p, a ^ 1);
+                let o = if o > 0.0 { o } else { 1.0 };
+                k.c[a] = 2.0 / (t + o) / t;
+            }
+        }
+        k.b = 0.0;
+        k
+    }
+
     /// The coefficients at offset `i` of C-order arrays with strides `sy`, `sz`.
     #[inline]
     #[must_use]
@@ -125,6 +150,24 @@ impl Coef {
         }
         s - self.diag * u
     }
+}
+
+/// The defect `f + sum_k c_k u_k - diag u` and the diagonal at the cut unknown at
+/// offset `i` of a coarse level's C-order arrays ([`Coef::coarse`]).
+#[inline]
+#[must_use]
+pub fn coarse_cut_defect_at(
+    u: &[f64],
+    f: f64,
+    cuts: &[u64],
+    mask: &[u8],
+    i: usize,
+    sy: usize,
+    sz: usize,
+) -> (f64, f64) {
+    let at = [i - 1, i + 1, i - sy, i + sy, i - sz, i + sz];
+    let k = Coef::coarse(cuts[i], at.map(|j| is_unknown(mask[j])));
+    (f + k.defect(at.map(|j| u[j]), u[i]), k.diag)
 }
 
 /// The defect and the diagonal at the cut unknown at offset `i` of C-order arrays `u`,
@@ -188,5 +231,30 @@ mod tests {
         assert_eq!(fine_mask(crate::voxelize::labels::BOUNDARY, p), CUT);
         assert_eq!(fine_mask(INTERIOR, 0), INTERIOR);
         assert_eq!(fine_mask(CENTER, p), CENTER);
+    }
+
+    #[test]
+    fn a_coarse_cut_arm_reads_a_fixed_neighbour_and_has_no_boundary_part() {
+        let p = encode([0.0, 0.4, 0.25, 0.0, 0.0, 0.0]);
+        let fine = Coef::of(
+            p,
+            [INTERIOR, CENTER, INTERIOR, INTERIOR, INTERIOR, INTERIOR],
+        );
+        // x+ cut towards a fixed node, y- cut towards an unknown (the line re-enters).
+        let k = Coef::coarse(p, [true, false, true, true, true, true]);
+        assert_eq!(k.b, 0.0);
+        assert_eq!(k.diag, fine.diag);
+        // Along x the other arm is not cut (length 1).
+        let t = arm(p, 1);
+        assert!((k.c[1] - 2.0 / (1.0 + t) / t).abs() < 1e-12, "{:?}", k.c);
+        assert_eq!(k.c[2], 0.0);
+        assert_eq!(
+            [k.c[0], k.c[3], k.c[4], k.c[5]],
+            [fine.c[0], fine.c[3], fine.c[4], fine.c[5]]
+        );
+        // With every fixed value 0 (a correction) it is the fine stencil without b.
+        let nb = [0.3, 0.0, 0.7, 0.2, 0.1, 0.5];
+        let homogeneous = Coef { b: 0.0, ..fine };
+        assert!((k.defect(nb, 0.4) - homogeneous.defect(nb, 0.4)).abs() < 1e-12);
     }
 }

@@ -158,7 +158,7 @@ fn remask(h: &mut Hierarchy<'_>) -> Result<(), GridError> {
         super::coarsen::coarsen_mask(
             above,
             &lvl.spec,
-            &*lvl.mask,
+            (&*lvl.mask, lvl.cuts.as_deref()),
             &lvl.field("mask"),
             &lvl.reach,
             &h.blocks,

@@ -23,8 +23,8 @@ pub struct Level {
     pub u: [Box<dyn BlockStore<f64>>; 2],
     /// `None` on the finest level (0).
     pub f: Option<Box<dyn BlockStore<f64>>>,
-    /// The packed arms of the sub-voxel boundary ([`super::cuts`]): on the finest level
-    /// of a run with cuts only.
+    /// The packed arms of the sub-voxel boundary ([`super::cuts`]): on every level of a
+    /// run with cuts (the coarse levels' from [`super::coarsen::coarse_arms`]).
     pub cuts: Option<Box<dyn BlockStore<u64>>>,
     /// For a level held as arrays: the runs of unknowns and the passes' buffers.
     pub flat: Cache,
@@ -103,10 +103,11 @@ impl Level {
     }
 }
 
-/// Bytes a coarse level of `spec` holds (mask, two generations, right-hand side).
+/// Bytes a coarse level of `spec` holds (mask, two generations, right-hand side, and
+/// with `cuts` the packed arms).
 #[must_use]
-pub fn coarse_level_bytes(spec: &GridSpec) -> u64 {
-    spec.num_voxels() * (1 + 3 * 8)
+pub fn coarse_level_bytes(spec: &GridSpec, cuts: bool) -> u64 {
+    spec.num_voxels() * (1 + 3 * 8 + if cuts { 8 } else { 0 })
 }
 
 /// Bytes one worker holds in the largest pass over a level whose blocks are `chunk`:

@@ -279,10 +279,15 @@ impl<'d> Hierarchy<'d> {
             let slab = (mem && !blocks.owns_all()).then(|| slab_of(&spec, &reach, blocks.decomp));
             let mask = maker.make::<u8>(&format!("mask{lvl}"), &spec, mem, 0)?;
             let above = levels.last().expect("a finer level");
+            // The sub-voxel boundary reaches every level.
+            let cuts = match above.cuts {
+                Some(_) => Some(maker.make::<u64>(&format!("cuts{lvl}"), &spec, mem, 0)?),
+                None => None,
+            };
             coarsen_mask(
                 above,
                 &spec,
-                &*mask,
+                (&*mask, cuts.as_deref()),
                 &format!("mask@{lvl}"),
                 &reach,
                 &blocks,
@@ -297,7 +302,7 @@ impl<'d> Hierarchy<'d> {
                 mask,
                 u,
                 f,
-                cuts: None,
+                cuts,
                 flat: super::flat::Cache::default(),
                 depth: lvl,
                 halo,

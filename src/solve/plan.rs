@@ -34,7 +34,7 @@ pub fn plan_memory(
     let mut avail = mem.work_bytes().saturating_sub(workers as u64 * per_worker);
     let mut in_memory = vec![false; coarse.len() + 1];
     for (k, s) in coarse.iter().enumerate().rev() {
-        let b = share(k + 1, coarse_level_bytes(s)) + super::flat::pass_bytes(s, threads);
+        let b = share(k + 1, coarse_level_bytes(s, cuts)) + super::flat::pass_bytes(s, threads);
         if b <= avail {
             avail -= b;
             in_memory[k + 1] = true;
