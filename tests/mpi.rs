@@ -201,10 +201,12 @@ fn spot_on_two_and_three_ranks_is_the_same_bytes_as_one_process() {
         &[("HARMAP_EXCHANGE_ROUND", "4096")],
     );
     // Blocks of 32: four block layers, most of whose blocks hold no unknown, which
-    // the block passes of each rank skip as one process does.
+    // the block passes of each rank skip as one process does. In 44 MiB the finest
+    // level goes to scratch files, so its passes (with the cut unknowns) are the
+    // block passes, in one process and on the ranks.
     same_bytes_on_ranks(
         &spot,
-        &["--resolution", "96", "--chunk", "32"],
+        &["--resolution", "96", "--chunk", "32", "--mem", "44MiB"],
         &[2, 3],
         &[],
     );
@@ -215,8 +217,8 @@ fn crambin_on_one_two_and_three_ranks_is_the_same_bytes_as_one_process() {
     let Some(pdb) = shared_data("molecules/1crn.pdb") else {
         return;
     };
-    // A molecule has cuts (its sub-voxel boundary): the finest level runs the block
-    // passes on each rank.
+    // A molecule has cuts (its sub-voxel boundary): the finest level, in memory, runs
+    // the whole-array passes with its cut unknowns on each rank's slab.
     same_bytes_on_ranks(&pdb, &["--spacing", "0.5"], &[1, 2, 3], &[]);
     // Its solid as a label volume, in blocks of 32: three block layers, so that on 3
     // ranks the middle one has two slab faces. A label volume solves on the

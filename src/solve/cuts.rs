@@ -170,6 +170,60 @@ pub fn coarse_cut_defect_at(
     (f + k.defect(at.map(|j| u[j]), u[i]), k.diag)
 }
 
+/// A level's arms and mask as whole arrays, for the cut unknowns of its whole-array
+/// passes: the same coefficients and arithmetic as [`cut_defect_at`] (the finest
+/// level) and [`coarse_cut_defect_at`] (a coarse level, `coarse`).
+#[derive(Clone, Copy)]
+pub struct CutArrays<'a> {
+    /// The packed arms.
+    pub arms: &'a [u64],
+    /// The mask.
+    pub mask: &'a [u8],
+    /// A coarse level: a correction with a right-hand side.
+    pub coarse: bool,
+}
+
+impl CutArrays<'_> {
+    /// The defect and the diagonal at the cut unknown at offset `i` (strides `sy`,
+    /// `sz`), whose neighbours hold `nb` (x-, x+, y-, y+, z-, z+) and itself `u`, with
+    /// the right-hand side `f` (coarse levels).
+    #[inline]
+    #[must_use]
+    pub fn defect(
+        &self,
+        i: usize,
+        sy: usize,
+        sz: usize,
+        nb: [f64; 6],
+        u: f64,
+        f: f64,
+    ) -> (f64, f64) {
+        let at = [i - 1, i + 1, i - sy, i + sy, i - sz, i + sz];
+        if self.coarse {
+            let k = Coef::coarse(self.arms[i], at.map(|j| is_unknown(self.mask[j])));
+            (f + k.defect(nb, u), k.diag)
+        } else {
+            let k = Coef::of(self.arms[i], at.map(|j| self.mask[j]));
+            (k.defect(nb, u), k.diag)
+        }
+    }
+
+    /// [`CutArrays::defect`] with the neighbours read from the whole array `u`.
+    #[inline]
+    #[must_use]
+    pub fn defect_in(
+        &self,
+        u: &[f64],
+        f: Option<&[f64]>,
+        i: usize,
+        sy: usize,
+        sz: usize,
+    ) -> (f64, f64) {
+        let nb = [i - 1, i + 1, i - sy, i + sy, i - sz, i + sz].map(|j| u[j]);
+        self.defect(i, sy, sz, nb, u[i], f.map_or(0.0, |f| f[i]))
+    }
+}
+
 /// The defect and the diagonal at the cut unknown at offset `i` of C-order arrays `u`,
 /// `cuts`, `mask` with strides `sy`, `sz`.
 #[inline]

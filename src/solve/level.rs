@@ -69,19 +69,20 @@ impl Level {
     /// on the arrays ([`super::flat`]), with the same results.
     #[must_use]
     pub fn as_flat(&self) -> Option<Flat<'_>> {
-        // The whole-array passes know only the 7-point stencil: a level with cuts goes
-        // block by block.
-        if self.cuts.is_some() {
-            return None;
-        }
         Flat::of(
             &self.spec,
             self.mask.contiguous()?,
             [self.u[0].contiguous()?, self.u[1].contiguous()?],
-            match &self.f {
-                Some(f) => Some(f.contiguous()?),
-                None => None,
-            },
+            (
+                match &self.f {
+                    Some(f) => Some(f.contiguous()?),
+                    None => None,
+                },
+                match &self.cuts {
+                    Some(c) => Some(c.contiguous()?),
+                    None => None,
+                },
+            ),
             &self.flat,
             self.slab.as_ref(),
         )

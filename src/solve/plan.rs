@@ -34,7 +34,8 @@ pub fn plan_memory(
     let mut avail = mem.work_bytes().saturating_sub(workers as u64 * per_worker);
     let mut in_memory = vec![false; coarse.len() + 1];
     for (k, s) in coarse.iter().enumerate().rev() {
-        let b = share(k + 1, coarse_level_bytes(s, cuts)) + super::flat::pass_bytes(s, threads);
+        let b =
+            share(k + 1, coarse_level_bytes(s, cuts)) + super::flat::pass_bytes(s, threads, cuts);
         if b <= avail {
             avail -= b;
             in_memory[k + 1] = true;
@@ -44,7 +45,7 @@ pub fn plan_memory(
     }
     // The finest level: labels and two generations of f64.
     let fine_bytes = share(0, fine.num_voxels() * 17 + arms(8 * fine.num_voxels()))
-        + super::flat::pass_bytes(fine, threads);
+        + super::flat::pass_bytes(fine, threads, cuts);
     if in_memory.iter().skip(1).all(|&m| m) && fine_bytes <= avail {
         in_memory[0] = true;
     }

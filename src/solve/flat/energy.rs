@@ -4,7 +4,7 @@
 use rayon::prelude::*;
 
 use super::prolong::{correction_at, interpolate_xy, PlanePair};
-use super::runs::{dims, slab_planes, Columns};
+use super::runs::{dims, row_of, slab_planes, Columns};
 use super::Flat;
 use crate::math::Idx3;
 use crate::solve::stencil::energy_term;
@@ -92,7 +92,10 @@ impl Flat<'_> {
                         let (m, c, q) = (&*prev, &*cur, &*next);
                         let mut col = vec![0.0; cols.count];
                         for &(y, x0, x1) in &runs.planes[z] {
-                            let (y, r) = (y as usize, y as usize * nx);
+                            // A cut unknown too: the staircase's energy, as the block
+                            // passes take it.
+                            let y = row_of(y).0;
+                            let r = y * nx;
                             for (k, a, b) in cols.split(y, x0 as usize, x1 as usize) {
                                 for i in r + a..r + b {
                                     let nb =

@@ -16,6 +16,10 @@
 //! are not being written. The other passes run over slabs of whole planes too, with
 //! buffers lent per task from pools that live with the level.
 //!
+//! On a level with cuts ([`crate::solve::cuts`]) each cut unknown is a run of one,
+//! marked, among the runs; the passes relax it, and take its defect, with the point
+//! kernel the block passes use ([`crate::solve::cuts::CutArrays`]).
+//!
 //! Files: [`runs`] (the unknowns as runs along x, the block columns of the sums),
 //! `smooth` (red-black sweeps in place), `stats` (residual and largest change),
 //! `restrict` (full weighting of the defect), `prolong` (trilinear correction),
@@ -67,11 +71,14 @@ pub struct Cache {
 pub const PASS_PLANES: u64 = 12;
 
 /// Bytes the whole-array passes of a level of `spec` keep with `threads` threads: the
-/// pools' planes, and the runs of unknowns (counted at two runs per row).
+/// pools' planes, and the runs of unknowns (counted at two runs per row, and with
+/// `cuts` a run for each cut unknown, counted at one voxel in eight: about one in a
+/// hundred is cut on the finest level of a mesh or molecule, more on coarser levels).
 #[must_use]
-pub fn pass_bytes(spec: &GridSpec, threads: usize) -> u64 {
+pub fn pass_bytes(spec: &GridSpec, threads: usize, cuts: bool) -> u64 {
     let [nz, ny, nx] = spec.shape;
-    threads as u64 * PASS_PLANES * ny * nx * 8 + 2 * nz * ny * 12
+    let cut_runs = if cuts { spec.num_voxels() / 8 * 12 } else { 0 };
+    threads as u64 * PASS_PLANES * ny * nx * 8 + 2 * nz * ny * 12 + cut_runs
 }
 
 impl Cache {
@@ -117,12 +124,14 @@ impl Cache {
 pub struct Flat<'a> {
     /// Shape and blocks.
     pub spec: &'a GridSpec,
-    /// Unknowns are `INTERIOR`.
+    /// Unknowns are `INTERIOR` and `CUT`.
     pub mask: &'a dyn Contiguous<u8>,
     /// The two generations.
     pub u: [&'a dyn Contiguous<f64>; 2],
     /// The right-hand side (coarse levels).
     pub f: Option<&'a dyn Contiguous<f64>>,
+    /// The packed arms, on a level with cuts ([`crate::solve::cuts`]).
+    pub arms: Option<&'a dyn Contiguous<u64>>,
     /// The runs of the unknowns and the passes' buffers.
     pub cache: &'a Cache,
     /// On MPI ranks, the planes this process computes and owns; `None`: all of them.
@@ -136,7 +145,10 @@ impl<'a> Flat<'a> {
         spec: &'a GridSpec,
         mask: &'a dyn Contiguous<u8>,
         u: [&'a dyn Contiguous<f64>; 2],
-        f: Option<&'a dyn Contiguous<f64>>,
+        (f, arms): (
+            Option<&'a dyn Contiguous<f64>>,
+            Option<&'a dyn Contiguous<u64>>,
+        ),
         cache: &'a Cache,
         slab: Option<&'a Slab>,
     ) -> Option<Self> {
@@ -148,6 +160,7 @@ impl<'a> Flat<'a> {
             mask,
             u,
             f,
+            arms,
             cache,
             slab,
         })

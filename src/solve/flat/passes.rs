@@ -2,6 +2,7 @@
 //! the restriction and the correction they include.
 
 use std::sync::atomic::Ordering;
+use std::sync::RwLockReadGuard;
 
 use rayon::prelude::*;
 
@@ -11,8 +12,30 @@ use super::runs::dims;
 use super::smooth::sweeps;
 use super::stats::{plane_stats, PlaneStats};
 use super::Flat;
+use crate::grid::Array;
+use crate::solve::cuts::CutArrays;
+
+/// The read guards of a level's arms and mask, for [`Flat::cut_arrays`].
+type CutGuards<'a> = Option<(
+    RwLockReadGuard<'a, Array<u64>>,
+    RwLockReadGuard<'a, Array<u8>>,
+)>;
 
 impl Flat<'_> {
+    /// The arms and the mask of a level with cuts, held for a pass.
+    fn cut_guards(&self) -> CutGuards<'_> {
+        self.arms.map(|a| (a.array(), self.mask.array()))
+    }
+
+    /// The cut unknowns' arrays from [`Flat::cut_guards`].
+    fn cut_arrays<'g>(&self, g: &'g CutGuards<'_>) -> Option<CutArrays<'g>> {
+        g.as_ref().map(|(arms, mask)| CutArrays {
+            arms,
+            mask,
+            coarse: self.f.is_some(),
+        })
+    }
+
     /// Pre-smoothing: generation 1 = generation 0 after `n` sweeps; with `measure`, the
     /// residual of generation 0 first; then the restriction of the defect into
     /// `coarse` (its right-hand side, and a zero correction in its generation 0).
@@ -30,8 +53,18 @@ impl Flat<'_> {
         let shape = dims(self.spec);
         let f = self.f.map(|f| f.array());
         let f = f.as_deref().map(std::ops::Deref::deref);
+        let guards = self.cut_guards();
+        let cut = self.cut_arrays(&guards);
         let u0 = self.u[0].array();
-        let st = plane_stats(self.spec, &u0, None, self.runs(), f, measure, &self.own());
+        let st = plane_stats(
+            self.spec,
+            &u0,
+            None,
+            self.runs(),
+            (f, cut),
+            measure,
+            &self.own(),
+        );
         let mut u1 = self.u[1].array_mut();
         // Generation 1 holds the fixed values once it has been written whole.
         let fixed = self.cache.fixed_in_both.swap(true, Ordering::Relaxed);
@@ -39,7 +72,7 @@ impl Flat<'_> {
             &mut u1,
             Some((&u0, fixed)),
             self.runs(),
-            f,
+            (f, cut),
             shape,
             n,
             &self.compute(),
@@ -53,6 +86,8 @@ impl Flat<'_> {
         let shape = dims(self.spec);
         let f = self.f.map(|f| f.array());
         let f = f.as_deref().map(std::ops::Deref::deref);
+        let guards = self.cut_guards();
+        let cut = self.cut_arrays(&guards);
         let u1 = self.u[1].array();
         let cmask = coarse.mask.array();
         let mut cf = coarse
@@ -63,7 +98,7 @@ impl Flat<'_> {
             shape,
             &u1,
             self.runs(),
-            f,
+            (f, cut),
             dims(coarse.spec),
             &cmask,
             &mut cf,
@@ -92,6 +127,8 @@ impl Flat<'_> {
         let shape = dims(self.spec);
         let f = self.f.map(|f| f.array());
         let f = f.as_deref().map(std::ops::Deref::deref);
+        let guards = self.cut_guards();
+        let cut = self.cut_arrays(&guards);
         let mut u1 = self.u[1].array_mut();
         {
             let e = coarse.u[0].array();
@@ -105,7 +142,15 @@ impl Flat<'_> {
                 &self.cache.prolong,
             );
         }
-        sweeps(&mut u1, None, self.runs(), f, shape, n, &self.compute());
+        sweeps(
+            &mut u1,
+            None,
+            self.runs(),
+            (f, cut),
+            shape,
+            n,
+            &self.compute(),
+        );
         let mut u0 = self.u[0].array_mut();
         // The result becomes generation 0; generation 1 keeps the old state, which the
         // next pre-smoothing overwrites.
@@ -113,6 +158,14 @@ impl Flat<'_> {
         // The largest change against the old state and the residual of the new one, in
         // one pass.
         let old = change.then_some(&u1[..]);
-        plane_stats(self.spec, &u0, old, self.runs(), f, measure, &self.own())
+        plane_stats(
+            self.spec,
+            &u0,
+            old,
+            self.runs(),
+            (f, cut),
+            measure,
+            &self.own(),
+        )
     }
 }

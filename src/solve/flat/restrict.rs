@@ -2,16 +2,16 @@
 
 use rayon::prelude::*;
 
-use super::runs::{slab_planes, Runs};
+use super::runs::{row_of, slab_planes, Runs};
 use crate::parallel::Pool;
+use crate::solve::cuts::{is_unknown, CutArrays};
 use crate::solve::stencil::{defect_at, full_weighting};
-use crate::voxelize::labels::INTERIOR;
 
 /// The defect plane `z` (0 off the unknowns, and off the grid).
 pub(super) fn defect_plane(
     u: &[f64],
     runs: &Runs,
-    f: Option<&[f64]>,
+    (f, cut): (Option<&[f64]>, Option<CutArrays<'_>>),
     shape: [usize; 3],
     z: i64,
     out: &mut [f64],
@@ -24,8 +24,13 @@ pub(super) fn defect_plane(
     let z = z as usize;
     let (sy, sz) = (nx, nx * ny);
     for &(y, x0, x1) in &runs.planes[z] {
-        let (y, x0, x1) = (y as usize, x0 as usize, x1 as usize);
+        let ((y, is_cut), x0, x1) = (row_of(y), x0 as usize, x1 as usize);
         let row = (z * ny + y) * nx;
+        if is_cut {
+            let cut = cut.expect("cut unknowns on a level with arms");
+            out[y * nx + x0] = cut.defect_in(u, f, row + x0, sy, sz).0;
+            continue;
+        }
         for x in x0..x1 {
             out[y * nx + x] = defect_at(u, f, row + x, sy, sz);
         }
@@ -42,7 +47,7 @@ pub(super) fn restrict(
     fine: [usize; 3],
     u: &[f64],
     runs: &Runs,
-    f: Option<&[f64]>,
+    (f, cut): (Option<&[f64]>, Option<CutArrays<'_>>),
     coarse: [usize; 3],
     cmask: &[u8],
     cf: &mut [f64],
@@ -65,7 +70,7 @@ pub(super) fn restrict(
                 for (k, out) in outs.chunks_exact_mut(cp).enumerate() {
                     let zc = first + slab * per + k;
                     let cm = &cmask[zc * cp..(zc + 1) * cp];
-                    if !cm.contains(&INTERIOR) {
+                    if !cm.iter().any(|&m| is_unknown(m)) {
                         out.fill(0.0);
                         continue;
                     }
@@ -73,15 +78,15 @@ pub(super) fn restrict(
                     if last == Some(z0) {
                         d.copy_within(2 * p.., 0);
                     } else {
-                        defect_plane(u, runs, f, fine, z0, &mut d[..p]);
+                        defect_plane(u, runs, (f, cut), fine, z0, &mut d[..p]);
                     }
-                    defect_plane(u, runs, f, fine, z0 + 1, &mut d[p..2 * p]);
-                    defect_plane(u, runs, f, fine, z0 + 2, &mut d[2 * p..]);
+                    defect_plane(u, runs, (f, cut), fine, z0 + 1, &mut d[p..2 * p]);
+                    defect_plane(u, runs, (f, cut), fine, z0 + 2, &mut d[2 * p..]);
                     last = Some(z0 + 2);
                     for yc in 0..cny {
                         for xc in 0..cnx {
                             let o = yc * cnx + xc;
-                            out[o] = if cm[o] == INTERIOR {
+                            out[o] = if is_unknown(cm[o]) {
                                 full_weighting(d, p + (2 * yc) * nx + 2 * xc, nx, p)
                             } else {
                                 0.0

@@ -4,12 +4,25 @@
 use rayon::prelude::*;
 
 use crate::grid::GridSpec;
+use crate::solve::cuts::CUT;
 use crate::voxelize::labels::INTERIOR;
 
 /// The unknowns of a level as runs along x: for each plane, `(y, x0, x1)` with every
 /// voxel of `x0..x1` of row `y` an unknown. Sweeps walk the runs and skip the rest.
+/// An unknown with a cut arm ([`CUT`]) is a run of its own, its `y` marked with
+/// [`CUT_ROW`]: the runs of a plane stay in y, x order, so that the sums over them add
+/// the unknowns in the order the block passes do.
 pub struct Runs {
     pub(super) planes: Vec<Vec<(u32, u32, u32)>>,
+}
+
+/// The mark on the row of a run that is one cut unknown.
+pub(super) const CUT_ROW: u32 = 1 << 31;
+
+/// A run's row, and whether it is one cut unknown.
+#[inline]
+pub(super) fn row_of(y: u32) -> (usize, bool) {
+    ((y & !CUT_ROW) as usize, y & CUT_ROW != 0)
 }
 
 impl Runs {
@@ -47,6 +60,9 @@ impl Runs {
                             }
                             out.push((y as u32, x0 as u32, x as u32));
                         } else {
+                            if row[x] == CUT {
+                                out.push((y as u32 | CUT_ROW, x as u32, x as u32 + 1));
+                            }
                             x += 1;
                         }
                     }
@@ -64,7 +80,7 @@ impl Runs {
         nx: usize,
     ) -> impl Iterator<Item = std::ops::Range<usize>> + '_ {
         self.planes[z].iter().map(move |&(y, x0, x1)| {
-            let r = y as usize * nx;
+            let r = row_of(y).0 * nx;
             r + x0 as usize..r + x1 as usize
         })
     }

@@ -2,7 +2,8 @@
 
 use rayon::prelude::*;
 
-use super::runs::{slab_planes, Runs};
+use super::runs::{row_of, slab_planes, Runs};
+use crate::solve::cuts::CutArrays;
 use crate::solve::stencil::defect_of;
 
 /// One red-black half-sweep of `color` over the whole grid, in place. `f`: the
@@ -17,6 +18,7 @@ pub(super) fn half_sweep(
     u: &mut [f64],
     runs: &Runs,
     f: Option<&[f64]>,
+    cut: Option<CutArrays<'_>>,
     shape: [usize; 3],
     color: usize,
     omega: f64,
@@ -68,7 +70,7 @@ pub(super) fn half_sweep(
                 let next: &[f64] = if z + 1 == b { &above[..p] } else { &after[..p] };
                 let fz = f.map(|f| &f[z * p..(z + 1) * p]);
                 for &(y, x0, x1) in &runs.planes[z] {
-                    let (y, x0, x1) = (y as usize, x0 as usize, x1 as usize);
+                    let ((y, is_cut), x0, x1) = (row_of(y), x0 as usize, x1 as usize);
                     let r = y * nx..(y + 1) * nx;
                     let (lo, hi) = cur.split_at_mut(y * nx);
                     let (row, hi) = hi.split_at_mut(nx);
@@ -78,7 +80,13 @@ pub(super) fn half_sweep(
                         zm: &prev[r.clone()],
                         zp: &next[r.clone()],
                     };
-                    rows.relax(row, fz.map(|fz| &fz[r]), [x0, x1], z + y + color, w);
+                    if is_cut {
+                        let cut = cut.expect("cut unknowns on a level with arms");
+                        let at = (z * p + y * nx, [nx, p]);
+                        rows.relax_cut(row, fz.map(|fz| &fz[r]), x0, z + y + color, omega, cut, at);
+                    } else {
+                        rows.relax(row, fz.map(|fz| &fz[r]), [x0, x1], z + y + color, w);
+                    }
                 }
             }
         });
@@ -113,6 +121,38 @@ impl Rows<'_> {
         }
     }
 
+    /// Relax the cut unknown at `x` of `row` if `(z + y + x) % 2` is the color
+    /// (`parity` is `z + y + color`): `u += omega defect / diag`, the arithmetic of
+    /// [`crate::solve::boxops::BoxView::half_sweep`]. `at`: the row's offset in the
+    /// level's arrays and their strides `[sy, sz]`.
+    #[inline]
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn relax_cut(
+        &self,
+        row: &mut [f64],
+        f: Option<&[f64]>,
+        x: usize,
+        parity: usize,
+        omega: f64,
+        cut: CutArrays<'_>,
+        (start, [sy, sz]): (usize, [usize; 2]),
+    ) {
+        if !(parity + x).is_multiple_of(2) {
+            return;
+        }
+        let nb = [
+            row[x - 1],
+            row[x + 1],
+            self.ym[x],
+            self.yp[x],
+            self.zm[x],
+            self.zp[x],
+        ];
+        let fx = f.map_or(0.0, |f| f[x]);
+        let (d, g) = cut.defect(start + x, sy, sz, nb, row[x], fx);
+        row[x] += omega * d / g;
+    }
+
     /// Relax `row` at `first, first + 2, ...` below `end` (all unknowns): the
     /// arithmetic of [`crate::solve::boxops::BoxView::half_sweep`], term by term.
     #[inline]
@@ -144,7 +184,7 @@ pub(super) fn sweeps(
     u: &mut [f64],
     src: Option<(&[f64], bool)>,
     runs: &Runs,
-    f: Option<&[f64]>,
+    (f, cut): (Option<&[f64]>, Option<CutArrays<'_>>),
     shape: [usize; 3],
     n: usize,
     planes: &std::ops::Range<usize>,
@@ -152,11 +192,11 @@ pub(super) fn sweeps(
     for k in 0..n {
         match src {
             Some((src, fixed)) if k == 0 => {
-                relax_from(u, src, fixed, runs, f, shape, 0, 1.0, planes);
+                relax_from(u, src, fixed, runs, (f, cut), shape, 0, 1.0, planes);
             }
-            _ => half_sweep(u, runs, f, shape, 0, 1.0),
+            _ => half_sweep(u, runs, f, cut, shape, 0, 1.0),
         }
-        half_sweep(u, runs, f, shape, 1, 1.0);
+        half_sweep(u, runs, f, cut, shape, 1, 1.0);
     }
     if n == 0 {
         if let Some((src, _)) = src {
@@ -183,7 +223,7 @@ pub(super) fn relax_from(
     src: &[f64],
     fixed: bool,
     runs: &Runs,
-    f: Option<&[f64]>,
+    (f, cut): (Option<&[f64]>, Option<CutArrays<'_>>),
     shape: [usize; 3],
     color: usize,
     omega: f64,
@@ -208,8 +248,15 @@ pub(super) fn relax_from(
             &src[(z + 1) * p..(z + 2) * p],
         );
         let fz = f.map(|f| &f[z * p..(z + 1) * p]);
+        if fixed {
+            // Every unknown of the plane first: a run reads its neighbours along x in
+            // the copy, and the one past its end may be a cut unknown, a run of its own.
+            for r in runs.ranges(z, nx) {
+                cur[r.clone()].copy_from_slice(&here[r]);
+            }
+        }
         for &(y, x0, x1) in &runs.planes[z] {
-            let (y, x0, x1) = (y as usize, x0 as usize, x1 as usize);
+            let ((y, is_cut), x0, x1) = (row_of(y), x0 as usize, x1 as usize);
             let r = y * nx..(y + 1) * nx;
             let rows = Rows {
                 ym: &here[(y - 1) * nx..y * nx],
@@ -218,10 +265,114 @@ pub(super) fn relax_from(
                 zp: &next[r.clone()],
             };
             let row = &mut cur[r.clone()];
-            if fixed {
-                row[x0..x1].copy_from_slice(&here[y * nx + x0..y * nx + x1]);
+            if is_cut {
+                // The neighbours along x from the source, as the in-place half-sweep
+                // of the copy would read them (they are of the other color).
+                let cut = cut.expect("cut unknowns on a level with arms");
+                let (i, q) = (y * nx + x0, z + y + color);
+                if (q + x0).is_multiple_of(2) {
+                    let nb = [
+                        here[i - 1],
+                        here[i + 1],
+                        rows.ym[x0],
+                        rows.yp[x0],
+                        rows.zm[x0],
+                        rows.zp[x0],
+                    ];
+                    let fx = fz.map_or(0.0, |fz| fz[i]);
+                    let (d, g) = cut.defect(z * p + i, nx, p, nb, here[i], fx);
+                    row[x0] = here[i] + omega * d / g;
+                }
+            } else {
+                rows.relax(row, fz.map(|fz| &fz[r]), [x0, x1], z + y + color, w);
             }
-            rows.relax(row, fz.map(|fz| &fz[r]), [x0, x1], z + y + color, w);
         }
     });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::solve::boxops::BoxView;
+    use crate::solve::cuts::{is_unknown, CUT};
+    use crate::voxelize::cuts::encode;
+    use crate::voxelize::labels::{CENTER, INTERIOR};
+
+    /// Sweeps of a whole array with cut unknowns among the runs (next to them, at
+    /// their ends) give the bytes of the block kernel's sweeps, on the finest level
+    /// and on a coarse one (a right-hand side, the coarse coefficients); the first
+    /// half-sweep read from a source copy too.
+    #[test]
+    #[allow(clippy::many_single_char_names)] // grid axes (z, y, x) as in the formulas
+    fn whole_array_sweeps_with_cut_unknowns_equal_the_block_kernel() {
+        let shape = [9usize, 10, 11];
+        let [nz, ny, nx] = shape;
+        let n = nz * ny * nx;
+        let (mut mask, mut arms, mut u, mut f) =
+            (vec![0u8; n], vec![0u64; n], vec![0.0; n], vec![0.0; n]);
+        for z in 0..nz {
+            for y in 0..ny {
+                for x in 0..nx {
+                    let i = (z * ny + y) * nx + x;
+                    let h = (z * 7 + y * 13 + x * 5) % 17;
+                    let edge = [z, y, x]
+                        .iter()
+                        .zip(shape)
+                        .any(|(&c, s)| c == 0 || c + 1 == s);
+                    u[i] = ((i * 37) % 101) as f64 / 101.0;
+                    f[i] = ((i * 13) % 7) as f64 / 7.0 - 0.5;
+                    mask[i] = match (edge, h) {
+                        (true, _) => 0,
+                        (false, 0) => CENTER,
+                        (false, 1..=2) => 1,
+                        (false, 3..=7) => {
+                            let t = (h as f64) / 10.0;
+                            arms[i] = encode([t, 0.0, 0.0, 1.0 - t, 0.3, 0.0]);
+                            CUT
+                        }
+                        _ => INTERIOR,
+                    };
+                }
+            }
+        }
+        let runs = Runs::of(&mask, shape);
+        assert!(runs
+            .planes
+            .iter()
+            .flatten()
+            .any(|r| r.0 & super::super::runs::CUT_ROW != 0));
+        for coarse in [false, true] {
+            let fs = coarse.then_some(&f[..]);
+            let cut = CutArrays {
+                arms: &arms,
+                mask: &mask,
+                coarse,
+            };
+            // Two sweeps, the first half-sweep from a copy: into an array of zeros, and
+            // into one that holds the fixed values already (its unknowns stale).
+            let stale: Vec<f64> = u
+                .iter()
+                .zip(&mask)
+                .map(|(&v, &m)| if is_unknown(m) { 9.0 } else { v })
+                .collect();
+            let mut b = u.clone();
+            let mut view = BoxView {
+                u: &mut b,
+                mask: &mask,
+                f: fs,
+                cuts: Some(&arms),
+                shape,
+                origin: [0; 3],
+            };
+            view.sweeps(2, [[false; 2]; 3], 1.0);
+            for (fixed, mut whole) in [(false, vec![0.0; n]), (true, stale)] {
+                let src = Some((&u[..], fixed));
+                sweeps(&mut whole, src, &runs, (fs, Some(cut)), shape, 2, &(0..nz));
+                for (i, (a, b)) in whole.iter().zip(&b).enumerate() {
+                    let at = format!("coarse {coarse}, fixed {fixed}, voxel {i}");
+                    assert_eq!(a.to_bits(), b.to_bits(), "{at}");
+                }
+            }
+        }
+    }
 }

@@ -3,8 +3,9 @@
 
 use rayon::prelude::*;
 
-use super::runs::{dims, slab_planes, Columns, Runs};
+use super::runs::{dims, row_of, slab_planes, Columns, Runs};
 use crate::grid::GridSpec;
+use crate::solve::cuts::CutArrays;
 use crate::solve::stencil::defect_at;
 
 /// Per plane of a level held as an array: the largest |u - old| and the count of
@@ -80,7 +81,7 @@ pub(super) fn plane_stats(
     u: &[f64],
     old: Option<&[f64]>,
     runs: &Runs,
-    f: Option<&[f64]>,
+    (f, cut): (Option<&[f64]>, Option<CutArrays<'_>>),
     measure: bool,
     own: &std::ops::Range<usize>,
 ) -> PlaneStats {
@@ -108,7 +109,8 @@ pub(super) fn plane_stats(
                     continue;
                 }
                 for &(y, x0, x1) in &runs.planes[z] {
-                    let (y, row) = (y as usize, (z * ny + y as usize) * nx);
+                    let (y, is_cut) = row_of(y);
+                    let row = (z * ny + y) * nx;
                     if let Some(old) = old {
                         for i in row + x0 as usize..row + x1 as usize {
                             max = max.max((u[i] - old[i]).abs());
@@ -119,7 +121,13 @@ pub(super) fn plane_stats(
                     }
                     for (c, a, b) in cols.split(y, x0 as usize, x1 as usize) {
                         for i in row + a..row + b {
-                            let r = defect_at(u, f, i, sy, sz) / 6.0;
+                            let r = if is_cut {
+                                let cut = cut.expect("cut unknowns on a level with arms");
+                                let (d, g) = cut.defect_in(u, f, i, sy, sz);
+                                d / g
+                            } else {
+                                defect_at(u, f, i, sy, sz) / 6.0
+                            };
                             col[c] += r * r;
                         }
                         n += (b - a) as u64;
@@ -183,14 +191,14 @@ mod tests {
         }
         let runs = Runs::of(&mask, [nz, ny, nx]);
         let (max, sum, count) =
-            plane_stats(&spec, &u, Some(&old), &runs, None, true, &(0..nz)).whole(&spec);
+            plane_stats(&spec, &u, Some(&old), &runs, (None, None), true, &(0..nz)).whole(&spec);
         assert!(count > 0 && sum > 0.0 && max > 0.0);
         for cuts in [vec![0, 6], vec![0, 1, 3, 6], vec![0, 2, 6]] {
             let mut parts: Vec<(crate::math::Idx3, PassStats)> = Vec::new();
             for w in cuts.windows(2) {
                 let layers = w[0]..w[1];
                 let own = w[0] as usize * 4..(w[1] as usize * 4).min(nz);
-                let st = plane_stats(&spec, &u, Some(&old), &runs, None, true, &own);
+                let st = plane_stats(&spec, &u, Some(&old), &runs, (None, None), true, &own);
                 parts.extend(st.per_block(&spec, layers));
             }
             parts.sort_by_key(|(b, _)| spec.block_linear(*b));
