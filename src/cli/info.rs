@@ -305,7 +305,7 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
         if let Some(u) = v.get("untangle").filter(|u| !u.is_null()) {
             writeln!(
                 out,
-                "          untangled from {} flipped and {} degenerate as the streamlines arrived: {} seeds moved, median {:.3} and at most {:.2} degrees ({} regions re-embedded); {} left",
+                "          untangled from {} flipped and {} degenerate as the streamlines arrived: {} seeds moved, median {:.3} and at most {:.2} degrees ({} regions re-embedded); {} left{}",
                 u["flipped_arrivals"],
                 u["degenerate_arrivals"],
                 u["seeds_moved"],
@@ -313,6 +313,11 @@ pub fn run(a: &Args, _g: &Global) -> anyhow::Result<()> {
                 u["max_move_deg"].as_f64().unwrap_or(f64::NAN),
                 u["regions"].as_u64().unwrap_or(0),
                 u["unresolved"],
+                if u["out_of_work"].as_bool() == Some(true) {
+                    " (stopped at its work bound)"
+                } else {
+                    ""
+                },
             )?;
         }
     }

@@ -233,8 +233,17 @@ pub fn summary(r: &TraceReport, seconds: f64) -> String {
 #[must_use]
 pub fn untangled(u: &harmap::trace::untangle::UntangleReport) -> String {
     format!(
-        "untangled from {} flipped and {} degenerate as the streamlines arrived: {} seeds moved, median {:.3} and at most {:.2} degrees",
-        u.flipped_arrivals, u.degenerate_arrivals, u.seeds_moved, u.median_move_deg, u.max_move_deg
+        "untangled from {} flipped and {} degenerate as the streamlines arrived: {} seeds moved, median {:.3} and at most {:.2} degrees{}",
+        u.flipped_arrivals,
+        u.degenerate_arrivals,
+        u.seeds_moved,
+        u.median_move_deg,
+        u.max_move_deg,
+        if u.out_of_work {
+            "; stopped at its work bound"
+        } else {
+            ""
+        }
     )
 }
 

@@ -48,11 +48,21 @@
 //!   overlapping components, which no one-to-one map of one sphere can take) keeps
 //!   its bad triangles, counted.
 //!
-//! Deterministic: vertices in index order, sequential sweeps, no parallel sums.
+//! - The work is bounded: vertex moves tried, triangles of the regions tried and their
+//!   solvers' iterations times unknowns, at most [`WORK_PER_TRIANGLE`] per triangle of
+//!   the surface. A surface whose tangles
+//!   keep most of their bad triangles through every round (a molecule with handles
+//!   under `--allow-genus`, whose map no untangling makes one-to-one) would otherwise
+//!   try rounds of sweeps over thousands of tangles; when the bound is reached the
+//!   untangling stops where it is, and the report says so (`out_of_work`).
+//!
+//! Deterministic: vertices in index order, sequential sweeps, no parallel sums; the
+//! work bound counts moves, not time.
 //!
 //! Performance: one pass over the triangles when nothing is flipped. Otherwise a
 //! vertex-to-triangle index ([`UNTANGLE_TRIANGLE_BYTES`] a triangle and
-//! [`UNTANGLE_VERTEX_BYTES`] a vertex), and work in proportion to the tangles.
+//! [`UNTANGLE_VERTEX_BYTES`] a vertex), and work in proportion to the tangles, at most
+//! [`WORK_PER_TRIANGLE`] per triangle.
 
 use glam::{DVec2, DVec3};
 use serde::Serialize;
@@ -91,6 +101,10 @@ const MAX_SWEEPS: u32 = 200;
 /// Rounds of re-embedding (each followed by local moves), at most.
 const MAX_REGION_ROUNDS: u32 = 32;
 
+/// Vertex moves tried, region triangles visited and the regions' solver iterations
+/// times their unknowns, that the untangling may spend, per triangle of the surface.
+pub const WORK_PER_TRIANGLE: u64 = 2000;
+
 /// Sweeps that move a re-embedded region's vertices back toward their points before
 /// it, at most.
 const RETURN_SWEEPS: u32 = 200;
@@ -125,6 +139,12 @@ pub struct UntangleReport {
     pub region_seeds: u64,
     /// Bad triangles left.
     pub unresolved: u64,
+    /// The untangling stopped at its work bound ([`WORK_PER_TRIANGLE`]) with bad
+    /// triangles left that more work might have cleared.
+    pub out_of_work: bool,
+    /// The work spent (vertex moves tried, region triangles visited, solver iterations
+    /// times unknowns), per triangle of the surface.
+    pub work_per_triangle: f64,
     /// The seeds whose sphere point moved, in index order (not recorded).
     #[serde(skip)]
     pub moved: Vec<u32>,
@@ -142,6 +162,15 @@ pub struct UntangleReport {
 /// What changed; the counts of the arrival points before it.
 #[must_use]
 pub fn untangle(triangles: &[[u32; 3]], sphere: &mut [Option<DVec3>]) -> UntangleReport {
+    untangle_within(triangles, sphere, WORK_PER_TRIANGLE as f64)
+}
+
+/// [`untangle`] with a work bound of `per_triangle` a triangle.
+fn untangle_within(
+    triangles: &[[u32; 3]],
+    sphere: &mut [Option<DVec3>],
+    per_triangle: f64,
+) -> UntangleReport {
     let mut report = UntangleReport::default();
     let mut bad: Vec<u32> = Vec::new();
     for (t, tri) in triangles.iter().enumerate() {
@@ -160,9 +189,13 @@ pub fn untangle(triangles: &[[u32; 3]], sphere: &mut [Option<DVec3>]) -> Untangl
         return report;
     }
     let mut u = Untangler::new(triangles, sphere.len());
+    u.limit = (per_triangle * triangles.len() as f64) as u64;
     let mut moved: Vec<(u32, DVec3)> = Vec::new();
     let mut ring_of = vec![0u32; sphere.len()];
     for round in 0..=MAX_REGION_ROUNDS {
+        if u.exhausted() {
+            break;
+        }
         local(
             &mut u,
             sphere,
@@ -188,6 +221,8 @@ pub fn untangle(triangles: &[[u32; 3]], sphere: &mut [Option<DVec3>]) -> Untangl
         bad.retain(|&t| orient(sphere, triangles[t as usize]).is_some_and(|o| o <= 0.0));
     }
     report.unresolved = bad.len() as u64;
+    report.out_of_work = u.exhausted() && !bad.is_empty();
+    report.work_per_triangle = u.work.get() as f64 / triangles.len() as f64;
     let mut moves: Vec<f64> = Vec::with_capacity(moved.len());
     for &(v, a) in &moved {
         let p = sphere[v as usize].expect("moved points are reached");
@@ -232,7 +267,11 @@ fn local(
         report.sweeps += 1;
         let before = bad.len();
         let mut touched: Vec<u32> = Vec::new();
-        for v in u.near(bad, rings, ring_of) {
+        let near = u.near(bad, rings, ring_of);
+        if !u.spend(near.len() as u64) {
+            break;
+        }
+        for v in near {
             let ring = ring_of[v as usize];
             if let Some(p) = u.improve(sphere, v, ring > 0) {
                 moved.push((v, sphere[v as usize].expect("reached")));
@@ -276,6 +315,9 @@ struct Untangler<'a> {
     /// A vertex's stamp: equal to `stamp` when it is in the current set.
     stamp_of: Vec<u32>,
     stamp: u32,
+    /// Work spent, and the bound ([`WORK_PER_TRIANGLE`] a triangle).
+    work: std::cell::Cell<u64>,
+    limit: u64,
 }
 
 impl<'a> Untangler<'a> {
@@ -303,7 +345,26 @@ impl<'a> Untangler<'a> {
             entries,
             stamp_of: vec![0; vertices],
             stamp: 0,
+            work: std::cell::Cell::new(0),
+            limit: WORK_PER_TRIANGLE * triangles.len() as u64,
         }
+    }
+
+    /// Spend `n` units of work; false (and nothing spent) when that would pass the
+    /// bound.
+    fn spend(&self, n: u64) -> bool {
+        let w = self.work.get() + n;
+        if w > self.limit {
+            self.work.set(self.limit);
+            return false;
+        }
+        self.work.set(w);
+        true
+    }
+
+    /// Whether the work bound is reached.
+    fn exhausted(&self) -> bool {
+        self.work.get() >= self.limit
     }
 
     fn around(&self, v: u32) -> &[u32] {
@@ -559,6 +620,31 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn untangling_stops_at_its_work_bound() {
+        let (_pos, tris, mut sphere) = cap(16, 1.0);
+        // A patch laid down reversed, as the two sides of a thin sheet are.
+        let at = |i: usize, j: usize| j * 17 + i;
+        let original = sphere.clone();
+        for j in 5..=10 {
+            for i in 6..=9 {
+                sphere[at(i, j)] = original[at(15 - i, j)];
+            }
+        }
+        let tangled = sphere.clone();
+        let whole = untangle(&tris, &mut sphere);
+        assert_eq!((whole.unresolved, whole.out_of_work), (0, false));
+        assert!(
+            whole.work_per_triangle > 0.0 && whole.work_per_triangle <= WORK_PER_TRIANGLE as f64
+        );
+        // With a bound below what it took, it stops with flips left, and says so.
+        let mut sphere = tangled;
+        let cut = untangle_within(&tris, &mut sphere, 0.5 * whole.work_per_triangle);
+        assert!(cut.out_of_work && cut.unresolved > 0, "{cut:?}");
+        assert!(cut.work_per_triangle <= 0.5 * whole.work_per_triangle + 1e-9);
+        assert_eq!(bad_count(&tris, &sphere) as u64, cut.unresolved);
     }
 
     #[test]

@@ -67,8 +67,22 @@ impl<'u, 'a> Reembedder<'u, 'a> {
         report: &mut UntangleReport,
     ) -> Vec<u32> {
         let mut left: Vec<u32> = Vec::new();
-        while let Some(&first) = bad.first() {
-            let tangle = self.tangle(&bad, first);
+        bad.sort_unstable();
+        // Bad triangles already taken (by a tangle or a re-embedded region): `bad` less
+        // these is what is still to do, the smallest first.
+        let mut taken = vec![false; self.u.triangles.len()];
+        let mut next = 0;
+        loop {
+            while next < bad.len() && taken[bad[next] as usize] {
+                next += 1;
+            }
+            let Some(&first) = bad.get(next) else { break };
+            if self.u.exhausted() {
+                // Out of work: what is left stays bad.
+                left.extend(bad[next..].iter().copied().filter(|&t| !taken[t as usize]));
+                break;
+            }
+            let tangle = self.tangle(&bad, &taken, first);
             // The smallest region whose embedding leaves fewer bad triangles than it
             // holds now.
             let mut found: Option<Found> = None;
@@ -76,6 +90,8 @@ impl<'u, 'a> Reembedder<'u, 'a> {
                 for weights in [Weights::MeanValue, Weights::InverseLength, Weights::Uniform] {
                     match self.try_region(sphere, &tangle, rings, weights) {
                         Attempt::Grow => {}
+                        // The other weights would find the same.
+                        Attempt::Reshape => break,
                         Attempt::Stop => break 'rings,
                         Attempt::Placed {
                             region,
@@ -102,16 +118,20 @@ impl<'u, 'a> Reembedder<'u, 'a> {
                 report.regions += 1;
                 report.region_rings = report.region_rings.max(u64::from(rings));
                 // The region's bad triangles are those of its embedding.
-                bad.retain(|t| region.binary_search(t).is_err());
+                for &t in &region {
+                    taken[t as usize] = true;
+                }
                 left.extend(region.iter().copied().filter(|&t| {
                     orient(sphere, self.u.triangles[t as usize]).is_some_and(|o| o <= 0.0)
                 }));
             }
-            bad.retain(|t| tangle.binary_search(t).is_err());
+            for &t in &tangle {
+                taken[t as usize] = true;
+            }
             left.extend_from_slice(&tangle);
-            left.sort_unstable();
-            left.dedup();
         }
+        left.sort_unstable();
+        left.dedup();
         // Triangles of a tangle whose region was re-embedded later may be good now.
         left.retain(|&t| orient(sphere, self.u.triangles[t as usize]).is_some_and(|o| o <= 0.0));
         left
@@ -164,13 +184,13 @@ impl<'u, 'a> Reembedder<'u, 'a> {
         }
     }
 
-    /// The bad triangles that share vertices with `first`, directly or through others,
-    /// sorted.
-    fn tangle(&mut self, bad: &[u32], first: u32) -> Vec<u32> {
+    /// The bad triangles (of `bad`, sorted, less those `taken`) that share vertices with
+    /// `first`, directly or through others, sorted.
+    fn tangle(&mut self, bad: &[u32], taken: &[bool], first: u32) -> Vec<u32> {
         let u = self.u;
         self.stamp += 1;
         let stamp = self.stamp;
-        let is_bad = |t: u32| bad.binary_search(&t).is_ok();
+        let is_bad = |t: u32| !taken[t as usize] && bad.binary_search(&t).is_ok();
         let mut out = vec![first];
         self.tri_stamp[first as usize] = stamp;
         let mut i = 0;
@@ -227,7 +247,9 @@ impl<'u, 'a> Reembedder<'u, 'a> {
         let mut region: Vec<u32> = core.iter().flat_map(|&v| u.around(v)).copied().collect();
         region.sort_unstable();
         region.dedup();
-        if region.len() as f64 > MAX_REGION_SHARE * u.triangles.len() as f64 {
+        if region.len() as f64 > MAX_REGION_SHARE * u.triangles.len() as f64
+            || !u.spend(region.len() as u64)
+        {
             return Attempt::Stop;
         }
         // Its half-edges, each once (a manifold region), and its boundary.
@@ -250,7 +272,7 @@ impl<'u, 'a> Reembedder<'u, 'a> {
             if !half.contains(&(b, a)) {
                 boundary_edges += 1;
                 if next.insert(a, b).is_some() {
-                    return Attempt::Grow; // the boundary touches itself at a
+                    return Attempt::Reshape; // the boundary touches itself at a
                 }
             }
         }
@@ -263,23 +285,23 @@ impl<'u, 'a> Reembedder<'u, 'a> {
         let mut v = next[&start];
         while v != start {
             if lp.len() > boundary_edges {
-                return Attempt::Grow;
+                return Attempt::Reshape;
             }
             lp.push(v);
             v = match next.get(&v) {
                 Some(&w) => w,
-                None => return Attempt::Grow,
+                None => return Attempt::Reshape,
             };
         }
         if lp.len() != boundary_edges {
-            return Attempt::Grow; // more than one loop: holes
+            return Attempt::Reshape; // more than one loop: holes
         }
         // Vertices: inner (all triangles in the region) and boundary.
         let verts = corners(u, &region);
         // 3 F = 2 E_inner + E_boundary.
         let edges = usize::midpoint(3 * region.len(), boundary_edges);
         if verts.len() + region.len() != edges + 1 {
-            return Attempt::Grow; // not a disk
+            return Attempt::Reshape; // not a disk
         }
         self.stamp += 1;
         let vstamp = self.stamp;
@@ -292,7 +314,7 @@ impl<'u, 'a> Reembedder<'u, 'a> {
             .filter(|&v| self.vert_stamp[v as usize] != vstamp)
             .collect();
         if inner.is_empty() {
-            return Attempt::Grow;
+            return Attempt::Reshape;
         }
         // An inner vertex has every triangle in the region; one that does not (a pinched
         // vertex with a fan outside) would move triangles outside it.
@@ -301,7 +323,7 @@ impl<'u, 'a> Reembedder<'u, 'a> {
                 .iter()
                 .all(|&t| self.tri_stamp[t as usize] == stamp)
         }) {
-            return Attempt::Grow;
+            return Attempt::Reshape;
         }
         // The boundary's points, projected at their mean direction.
         let mut sum = DVec3::ZERO;
@@ -312,7 +334,7 @@ impl<'u, 'a> Reembedder<'u, 'a> {
                     sum += p;
                     bpts.push(p);
                 }
-                None => return Attempt::Grow,
+                None => return Attempt::Reshape,
             }
         }
         let Some(c) = sum.try_normalize() else {
@@ -329,7 +351,7 @@ impl<'u, 'a> Reembedder<'u, 'a> {
             .map(|i| bq[i].perp_dot(bq[(i + 1) % bq.len()]))
             .sum();
         if area.is_nan() || area <= 0.0 {
-            return Attempt::Grow;
+            return Attempt::Reshape;
         }
         // Tutte: deg(i) x_i - sum of inner neighbours x_j = sum of boundary neighbours q_j.
         for (k, &v) in inner.iter().enumerate() {
@@ -372,7 +394,7 @@ impl<'u, 'a> Reembedder<'u, 'a> {
         }
         ls.sort_by(f64::total_cmp);
         let Some(&median) = ls.get(ls.len() / 2) else {
-            return Attempt::Grow;
+            return Attempt::Reshape;
         };
         let floor = median * 1e-6;
         // Each inner vertex's neighbours and weights (positive in every mode).
@@ -440,11 +462,14 @@ impl<'u, 'a> Reembedder<'u, 'a> {
             }
         };
         let mut x: Vec<DVec2> = now.iter().map(|q| q.unwrap_or(mean)).collect();
-        if weights == Weights::MeanValue {
-            bicgstab(&apply, &deg, &rhs, &mut x);
+        let iterations = if weights == Weights::MeanValue {
+            bicgstab(&apply, &deg, &rhs, &mut x)
         } else {
-            cg(&apply, &deg, &rhs, &mut x);
-        }
+            cg(&apply, &deg, &rhs, &mut x)
+        };
+        // The solve's work (the embedding is judged all the same; the bound stops the
+        // next attempt).
+        let _ = u.spend((iterations * n) as u64);
         let placed: Vec<(u32, DVec3)> = inner
             .iter()
             .zip(&x)
@@ -508,7 +533,9 @@ fn corners(u: &Untangler<'_>, tris: &[u32]) -> Vec<u32> {
 
 /// What one region came to.
 enum Attempt {
-    /// Not a region to embed in, or its embedding has a bad triangle: try a ring more.
+    /// Not a region to embed in (whatever the weights): try a ring more.
+    Reshape,
+    /// Its embedding with these weights failed: try the next weights, then a ring more.
     Grow,
     /// No larger region will do.
     Stop,

@@ -9,14 +9,14 @@ const MAX_SOLVER_ITERATIONS: usize = 2000;
 
 /// Solve `A x = b` for the symmetric positive definite `apply` (a Dirichlet graph
 /// Laplacian with diagonal `diag`) by conjugate gradients preconditioned by the
-/// diagonal, from `x`, both coordinates at once, to a residual of 1e-14 of `b`'s.
+/// diagonal, from `x`, both coordinates at once, to a residual of 1e-14 of `b`'s; returns the iterations.
 #[allow(clippy::many_single_char_names)] // the method's names
 pub(super) fn cg(
     apply: &dyn Fn(&[DVec2], &mut [DVec2]),
     diag: &[f64],
     b: &[DVec2],
     x: &mut [DVec2],
-) {
+) -> usize {
     let n = b.len();
     let dot = |a: &[DVec2], c: &[DVec2]| -> DVec2 {
         a.iter().zip(c).fold(DVec2::ZERO, |s, (p, q)| s + *p * *q)
@@ -30,11 +30,13 @@ pub(super) fn cg(
     let mut rz = dot(&r, &z);
     let bb = dot(b, b) * 1e-28;
     let mut ap = vec![DVec2::ZERO; n];
+    let mut iterations = 0;
     for _ in 0..(4 * n + 100).min(MAX_SOLVER_ITERATIONS) {
         let rr = dot(&r, &r);
         if (rr.x <= bb.x && rr.y <= bb.y) || !rr.is_finite() {
             break;
         }
+        iterations += 1;
         apply(&p, &mut ap);
         let pap = dot(&p, &ap);
         // Each coordinate is its own system with the same matrix.
@@ -51,18 +53,19 @@ pub(super) fn cg(
         }
         rz = rz_new;
     }
+    iterations
 }
 
 /// Solve `A x = b` for the nonsymmetric `apply` (a Dirichlet graph Laplacian with
 /// positive weights and diagonal `diag`) by BiCGSTAB preconditioned by the diagonal,
-/// from `x`, each coordinate its own system, to a residual of 1e-14 of `b`'s.
+/// from `x`, each coordinate its own system, to a residual of 1e-14 of `b`'s; returns the iterations.
 #[allow(clippy::many_single_char_names)] // the method's names
 pub(super) fn bicgstab(
     apply: &dyn Fn(&[DVec2], &mut [DVec2]),
     diag: &[f64],
     b: &[DVec2],
     x: &mut [DVec2],
-) {
+) -> usize {
     let n = b.len();
     let dot = |a: &[DVec2], c: &[DVec2]| -> DVec2 {
         a.iter().zip(c).fold(DVec2::ZERO, |s, (p, q)| s + *p * *q)
@@ -84,11 +87,13 @@ pub(super) fn bicgstab(
     let mut y = vec![DVec2::ZERO; n];
     let mut z = vec![DVec2::ZERO; n];
     let mut sv = vec![DVec2::ZERO; n];
+    let mut iterations = 0;
     for _ in 0..(4 * n + 100).min(MAX_SOLVER_ITERATIONS) {
         let rr = dot(&r, &r);
         if (rr.x <= bb.x && rr.y <= bb.y) || !rr.is_finite() {
             break;
         }
+        iterations += 1;
         let rho_new = dot(&r0, &r);
         let beta = ratio(rho_new, rho) * ratio(alpha, omega);
         rho = rho_new;
@@ -112,4 +117,5 @@ pub(super) fn bicgstab(
             break;
         }
     }
+    iterations
 }
