@@ -12,7 +12,7 @@
 //! Colors are by global index parity (`z + y + x` even is red), so a sweep gives the same
 //! values whatever the blocking.
 
-use super::cuts::{coarse_cut_defect_at, cut_defect_at, is_unknown, CUT};
+use super::cuts::{is_unknown, CutArrays, CUT};
 use super::stencil::{defect_at, defect_of, energy_term, full_weighting};
 use crate::voxelize::labels::INTERIOR;
 
@@ -50,12 +50,13 @@ impl BoxView<'_> {
     #[inline]
     fn cut(&self, i: usize) -> (f64, f64) {
         let (sy, sz) = self.strides();
-        let cuts = self.cuts.expect("a CUT voxel on a level with cuts");
-        match self.f {
+        let cut = CutArrays {
+            arms: self.cuts.expect("a CUT voxel on a level with cuts"),
+            mask: self.mask,
             // A coarse level: a correction, with its right-hand side.
-            Some(f) => coarse_cut_defect_at(self.u, f[i], cuts, self.mask, i, sy, sz),
-            None => cut_defect_at(self.u, cuts, self.mask, i, sy, sz),
-        }
+            coarse: self.f.is_some(),
+        };
+        cut.defect_in(self.u, self.f, i, sy, sz)
     }
 
     /// The defect at an unknown and the change a Jacobi step makes there (defect over

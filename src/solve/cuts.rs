@@ -152,27 +152,10 @@ impl Coef {
     }
 }
 
-/// The defect `f + sum_k c_k u_k - diag u` and the diagonal at the cut unknown at
-/// offset `i` of a coarse level's C-order arrays ([`Coef::coarse`]).
-#[inline]
-#[must_use]
-pub fn coarse_cut_defect_at(
-    u: &[f64],
-    f: f64,
-    cuts: &[u64],
-    mask: &[u8],
-    i: usize,
-    sy: usize,
-    sz: usize,
-) -> (f64, f64) {
-    let at = [i - 1, i + 1, i - sy, i + sy, i - sz, i + sz];
-    let k = Coef::coarse(cuts[i], at.map(|j| is_unknown(mask[j])));
-    (f + k.defect(at.map(|j| u[j]), u[i]), k.diag)
-}
-
-/// A level's arms and mask as whole arrays, for the cut unknowns of its whole-array
-/// passes: the same coefficients and arithmetic as [`cut_defect_at`] (the finest
-/// level) and [`coarse_cut_defect_at`] (a coarse level, `coarse`).
+/// A level's arms and mask (a box of them, or whole arrays), for the equation at its
+/// cut unknowns: [`Coef::of`] on the finest level, [`Coef::coarse`] with the
+/// right-hand side on a coarse level (`coarse`). The block passes and the whole-array
+/// passes both call it, so both do the same arithmetic.
 #[derive(Clone, Copy)]
 pub struct CutArrays<'a> {
     /// The packed arms.
@@ -222,23 +205,6 @@ impl CutArrays<'_> {
         let nb = [i - 1, i + 1, i - sy, i + sy, i - sz, i + sz].map(|j| u[j]);
         self.defect(i, sy, sz, nb, u[i], f.map_or(0.0, |f| f[i]))
     }
-}
-
-/// The defect and the diagonal at the cut unknown at offset `i` of C-order arrays `u`,
-/// `cuts`, `mask` with strides `sy`, `sz`.
-#[inline]
-#[must_use]
-pub fn cut_defect_at(
-    u: &[f64],
-    cuts: &[u64],
-    mask: &[u8],
-    i: usize,
-    sy: usize,
-    sz: usize,
-) -> (f64, f64) {
-    let k = Coef::at(cuts, mask, i, sy, sz);
-    let nb = [i - 1, i + 1, i - sy, i + sy, i - sz, i + sz].map(|j| u[j]);
-    (k.defect(nb, u[i]), k.diag)
 }
 
 #[cfg(test)]

@@ -266,23 +266,11 @@ pub(super) fn relax_from(
             };
             let row = &mut cur[r.clone()];
             if is_cut {
-                // The neighbours along x from the source, as the in-place half-sweep
-                // of the copy would read them (they are of the other color).
+                // Its neighbours along x in the copy hold the source's values (every
+                // unknown of the plane was copied first).
                 let cut = cut.expect("cut unknowns on a level with arms");
-                let (i, q) = (y * nx + x0, z + y + color);
-                if (q + x0).is_multiple_of(2) {
-                    let nb = [
-                        here[i - 1],
-                        here[i + 1],
-                        rows.ym[x0],
-                        rows.yp[x0],
-                        rows.zm[x0],
-                        rows.zp[x0],
-                    ];
-                    let fx = fz.map_or(0.0, |fz| fz[i]);
-                    let (d, g) = cut.defect(z * p + i, nx, p, nb, here[i], fx);
-                    row[x0] = here[i] + omega * d / g;
-                }
+                let at = (z * p + y * nx, [nx, p]);
+                rows.relax_cut(row, fz.map(|fz| &fz[r]), x0, z + y + color, omega, cut, at);
             } else {
                 rows.relax(row, fz.map(|fz| &fz[r]), [x0, x1], z + y + color, w);
             }

@@ -585,19 +585,23 @@ mod tests {
             .count()
     }
 
+    /// On `cap(16, _)`: vertices in columns 6..=9 of rows 5..=10 mirrored across column
+    /// 7.5, so that the patch is laid down reversed, as the two sides of a thin sheet are.
+    fn laid_down_twice(sphere: &mut [Option<DVec3>]) {
+        let at = |i: usize, j: usize| j * 17 + i;
+        let original = sphere.to_vec();
+        for j in 5..=10 {
+            for i in 6..=9 {
+                sphere[at(i, j)] = original[at(15 - i, j)];
+            }
+        }
+    }
+
     #[test]
     fn a_region_laid_down_twice_is_reembedded_inside_its_boundary() {
         for squeeze in [1.0, 1e4] {
             let (_pos, tris, mut sphere) = cap(16, squeeze);
-            // Vertices in columns 6..=9 of rows 5..=10 are mirrored across column 7.5:
-            // the patch is laid down reversed, as the two sides of a thin sheet are.
-            let at = |i: usize, j: usize| j * 17 + i;
-            let original = sphere.clone();
-            for j in 5..=10 {
-                for i in 6..=9 {
-                    sphere[at(i, j)] = original[at(15 - i, j)];
-                }
-            }
+            laid_down_twice(&mut sphere);
             let tangled = sphere.clone();
             let bad: Vec<u32> = (0..tris.len() as u32)
                 .filter(|&t| orient(&sphere, tris[t as usize]).is_some_and(|o| o <= 0.0))
@@ -625,14 +629,7 @@ mod tests {
     #[test]
     fn untangling_stops_at_its_work_bound() {
         let (_pos, tris, mut sphere) = cap(16, 1.0);
-        // A patch laid down reversed, as the two sides of a thin sheet are.
-        let at = |i: usize, j: usize| j * 17 + i;
-        let original = sphere.clone();
-        for j in 5..=10 {
-            for i in 6..=9 {
-                sphere[at(i, j)] = original[at(15 - i, j)];
-            }
-        }
+        laid_down_twice(&mut sphere);
         let tangled = sphere.clone();
         let whole = untangle(&tris, &mut sphere);
         assert_eq!((whole.unresolved, whole.out_of_work), (0, false));
